@@ -1,0 +1,316 @@
+"""NavigationEnv: the gymnasium environment of SPEC.md §2.
+
+One step = one simulated second: the navigation plays (or not) one voice instruction, then the world
+runs ``frequency`` frames. Observation: the paper's 14-number state. Reward: minus the tracking cost.
+
+Example:
+    >>> import gymnasium as gym
+    >>> import pernav
+    >>> env = gym.make("pernav/Town2-v0")
+    >>> obs, info = env.reset(seed=1, options={"route": 3, "user": "user4"})
+    >>> obs.shape
+    (14,)
+    >>> obs, reward, terminated, truncated, info = env.step(0)
+    >>> sorted(k for k in ("collisions", "missed_turns", "completed") if k in info)
+    ['collisions', 'completed', 'missed_turns']
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from pernav.env.policies import NavView, PromptPolicy, explore_policy, oracle_policy
+from pernav.world.cost import tracking_cost
+from pernav.world.drivers import (
+    CONTEXT_CHOICES,
+    NAMED_USERS,
+    PROFILE_RANGES,
+    Context,
+    DriverProfile,
+    ProfileError,
+    named_user,
+    resolve,
+)
+from pernav.world.routing import Route, RouteError, plan_route
+from pernav.world.simulation import N_INSTRUCTIONS, PLAYBACK, World
+from pernav.world.towns import TOWN_NAMES, TownError, get_town
+
+STATE_DIM = 14
+STATE_KEYS = ("x", "y", "z", "vx", "vy", "vz", "heading", "junction", "roundabout", "goal_x", "goal_y",
+              "steering", "reverse", "brake")
+REPLAY_AFTER = 15  # an unchanged instruction is replayed after this many steps (paper §5.1)
+DEFAULT_CONFIG: dict[str, Any] = {
+    "frequency": 10,  # simulation frames per policy step (one step = one second)
+    "n_traffic": 8,  # traffic cars kept around the driver
+    "adaptive_speed": False,  # 21 actions (instruction x playback speed) instead of 7
+    "time_limit_factor": 2.0,  # episode truncated at factor x nominal route time + 30 s
+    "nominal_speed": 10.0,  # m/s used for a route's nominal time
+    "arrival_radius": 8.0,  # m from the destination that counts as arrived
+    "reroute_distance": 8.0,  # m off the route before the navigation re-plans
+}
+
+
+def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
+    """A user from a name (``user3``), a mapping or a JSON/YAML file path.
+
+    A mapping holds profile fields and/or context keys, and optionally ``user`` (a named user the
+    other fields override).
+
+    >>> p, c = load_user({"user": "user1", "reaction_time": 2.0, "visual": "foggy"})
+    >>> p.reaction_time, c.visual
+    (2.0, 'foggy')
+    """
+    if isinstance(spec, DriverProfile):
+        return spec, None
+    if isinstance(spec, (str, Path)) and str(spec) in NAMED_USERS:
+        return named_user(str(spec)), None
+    if isinstance(spec, (str, Path)):
+        path = Path(spec)
+        if not path.suffix and not path.exists():
+            raise ProfileError(f"unknown user {str(spec)!r}; choose one of {', '.join(NAMED_USERS)} or a profile file")
+        if not path.is_file():
+            raise ProfileError(f"user file {str(path)!r} does not exist")
+        text = path.read_text()
+        try:
+            if path.suffix.lower() in (".yaml", ".yml"):
+                import yaml
+
+                spec = yaml.safe_load(text)
+            else:
+                spec = json.loads(text)
+        except Exception as exc:  # noqa: BLE001 - any parse error is the user's file, reported in one line
+            raise ProfileError(f"cannot parse user file {str(path)!r}: {str(exc).splitlines()[0]}") from None
+    if not isinstance(spec, dict):
+        raise ProfileError(f"a user must be a name, a mapping or a file, not {type(spec).__name__}")
+    spec = dict(spec)
+    base = spec.pop("user", None)
+    profile = named_user(base).to_dict() if base is not None else DriverProfile().to_dict()
+    context = {k: spec.pop(k) for k in list(spec) if k in CONTEXT_CHOICES}
+    unknown = sorted(set(spec) - set(PROFILE_RANGES))
+    if unknown:
+        allowed = ", ".join(["user", *PROFILE_RANGES, *CONTEXT_CHOICES])
+        raise ProfileError(f"unknown profile field {unknown[0]!r}; allowed: {allowed}")
+    profile.update(spec)
+    return DriverProfile(**profile), (Context(**context) if context else None)
+
+
+class NavigationEnv(gym.Env):
+    """Voice navigation of a simulated driver through a town (SPEC.md §2).
+
+    ``reset(options=...)``: ``route`` (index 0-9), ``user`` (name, mapping, file or
+    :class:`DriverProfile`), ``context`` (:class:`Context` or mapping). Actions: 0-6 (or 0-20 with
+    ``adaptive_speed``: ``instruction * 3 + playback``, playback 0 slower / 1 normal / 2 faster).
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, town: str = "Town1", config: dict | None = None, render_mode: str | None = None) -> None:
+        if town not in TOWN_NAMES:
+            raise TownError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
+        unknown = sorted(set(config or {}) - set(DEFAULT_CONFIG))
+        if unknown:
+            raise ValueError(f"unknown config key {unknown[0]!r}; allowed: {', '.join(DEFAULT_CONFIG)}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode {render_mode!r} not supported; use 'rgb_array'")
+        self.config = {**DEFAULT_CONFIG, **(config or {})}
+        self.town = get_town(town)
+        self.render_mode = render_mode
+        self.n_actions = N_INSTRUCTIONS * (3 if self.config["adaptive_speed"] else 1)
+        self.action_space = gym.spaces.Discrete(self.n_actions)
+        high = np.full(STATE_DIM, 1e4, dtype=np.float32)
+        self.observation_space = gym.spaces.Box(-high, high, dtype=np.float32)
+        self.profile = named_user("user1")
+        self.context = Context()
+        self.route_index = 0
+        self.world: World | None = None
+        self._explore = explore_policy()
+        self._viewer = None
+
+    # ----- helpers ------------------------------------------------------------------------------
+    def decode(self, action: int) -> tuple[int, str]:
+        """(instruction 0-6, playback) of an action of this env's action space."""
+        if not 0 <= int(action) < self.n_actions:
+            raise ValueError(f"action {action} out of range [0, {self.n_actions - 1}]")
+        if self.config["adaptive_speed"]:
+            return int(action) // 3, PLAYBACK[int(action) % 3]
+        return int(action), "normal"
+
+    def encode(self, instruction: int, playback: str = "normal") -> int:
+        return instruction * 3 + PLAYBACK.index(playback) if self.config["adaptive_speed"] else instruction
+
+    def nav_view(self) -> NavView:
+        played = {i for i, m in self._played if m == self._next_key()}
+        return NavView(self.route, self.progress, float(self.world.ego.speed), self.last_instruction, played)
+
+    def _next_key(self) -> tuple:
+        m = NavView(self.route, self.progress, 0.0, 0).next_manoeuvre()
+        return (self.reroutes, m.node if m else None)
+
+    def policy_action(self, policy: PromptPolicy) -> int:
+        """The action a prompt policy takes now, in this env's action space."""
+        return self.encode(policy(self.nav_view()))
+
+    def explore_action(self) -> int:
+        return self.policy_action(self._explore)
+
+    def oracle_action(self) -> int:
+        return self.policy_action(self._oracle)
+
+    # ----- gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = sorted(set(options) - {"route", "user", "context"})
+        if unknown:
+            raise ValueError(f"unknown reset option {unknown[0]!r}; allowed: route, user, context")
+        if "route" in options:
+            idx = options["route"]
+            if isinstance(idx, bool) or not isinstance(idx, (int, np.integer)) or not 0 <= idx < len(self.town.routes):
+                raise TownError(f"route index {idx!r} out of range [0, {len(self.town.routes) - 1}] for {self.town.name}")
+            self.route_index = int(idx)
+        if "user" in options:
+            self.profile, ctx = load_user(options["user"])
+            if ctx is not None:
+                self.context = ctx
+        if "context" in options:
+            ctx = options["context"]
+            self.context = ctx if isinstance(ctx, Context) else Context(**ctx)
+        self.driver = resolve(self.profile, self.context)
+        self._oracle = oracle_policy(self.driver)
+        self.route = self.town.routes[self.route_index]
+        self.goal_lane, self.goal_s = self.route.lanes[-1], self.route.end_s
+        world_seed = int(self.np_random.integers(2**31 - 1))
+        self.world = World(self.town, self.driver, self.route, seed=world_seed,
+                           n_traffic=self.config["n_traffic"], frequency=self.config["frequency"])
+        self.progress, self.off_route = 0.0, 0.0
+        self.time = 0.0
+        self.time_limit = self.config["time_limit_factor"] * self.route.length / self.config["nominal_speed"] + 30.0
+        self.last_instruction, self.repeat = 0, 0
+        self._played: list[tuple[int, tuple]] = []
+        self.tracking_cost = 0.0
+        self.missed_turns = self.wrong_turns = self.reroutes = 0
+        self.completed = False
+        self.goal = self.route.goal_waypoint(self.progress, 0.0)
+        return self._observation(), self._info(0.0, False)
+
+    def step(self, action):
+        if self.world is None:
+            raise RuntimeError("call reset() before step()")
+        instruction, playback = self.decode(action)
+        played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
+        if played:
+            self.world.ego.hear(instruction, playback, self.world.time)
+            self._played.append((instruction, self._next_key()))
+            self.repeat = 0
+        else:
+            self.repeat += 1
+        self.last_instruction = instruction
+        for _ in range(self.config["frequency"]):
+            self.world.frame()
+        self.time += 1.0
+        self.world.maintain_traffic()
+        ego = self.world.ego
+        cost = float(tracking_cost(ego.position, self.goal))
+        self.tracking_cost += cost
+        self._follow_route()
+        arrived = (self.route.length - self.progress < self.config["arrival_radius"]
+                   and np.linalg.norm(ego.position - self.route.destination) < self.config["arrival_radius"] + 4)
+        self.completed = bool(arrived)
+        truncated = not arrived and self.time >= self.time_limit
+        self.goal = self.route.goal_waypoint(self.progress, float(ego.speed))
+        obs = self._observation()
+        return obs, -cost, bool(arrived), bool(truncated), self._info(cost, played)
+
+    def _follow_route(self) -> None:
+        """Track progress; re-plan from where the car is when it has left the route."""
+        ego = self.world.ego
+        self.progress, dist = self.route.project(ego.position, hint=self.progress)
+        on_route = ego.path[0][:2] in self.route.roads
+        if on_route or dist < self.config["reroute_distance"]:
+            return
+        # classify against the route's manoeuvre the driver decided differently on
+        taken = {"stay": "pass"}
+        for m in self.route.manoeuvres:
+            choice = ego.last_choice.get(m.node)
+            if m.decision and choice is not None and taken.get(choice, choice) != m.kind and m.s >= self.progress - 80:
+                missed = (m.kind in ("left", "right") and choice == "straight") or (m.kind == "exit" and choice == "stay")
+                self.missed_turns += int(missed)
+                self.wrong_turns += int(not missed)
+                break
+        else:
+            self.wrong_turns += 1
+        start = next((lane for lane in ego.path if self.town.lane_junction.get(lane) is None), ego.path[-1])
+        start_s = ego.s if start == ego.path[0] else 0.0
+        try:
+            self.route = plan_route(self.town, start, start_s, [(self.goal_lane, self.goal_s)],
+                                    name=self.route.name)
+        except RouteError:  # nothing reaches the goal from here (cannot happen in the built-in towns)
+            return
+        self.reroutes += 1
+        self.progress, _ = self.route.project(ego.position)
+
+    def _observation(self) -> np.ndarray:
+        ego = self.world.ego
+        ahead = self.route.upcoming(self.progress)
+        d = ahead[0].s - self.progress if ahead else 1e3
+        at_ring = float(ego.box is not None and self.town.junctions[ego.box].kind == "roundabout")
+        v = ego.velocity
+        obs = np.array([ego.position[0], ego.position[1], 0.0, v[0], v[1], 0.0, ego.heading, np.exp(-max(d, 0.0)),
+                        at_ring, self.goal[0], self.goal[1], ego.steer / ego.driver.vehicle.max_steering, 0.0,
+                        ego.brake_input], dtype=np.float32)
+        return obs
+
+    def junction_info(self) -> dict[str, Any]:
+        """What an action mask needs: distance to the next decision junction and roundabout flags."""
+        ahead = self.route.upcoming(self.progress)
+        m = ahead[0] if ahead else None
+        ego = self.world.ego
+        in_ring = ego.box is not None and self.town.junctions[ego.box].kind == "roundabout"
+        return {
+            "distance_to_junction": float(m.s - self.progress) if m else 1e3,
+            "next_manoeuvre": m.kind if m else "none",
+            "in_roundabout": bool(in_ring),
+            "near_roundabout": bool(in_ring or (m is not None and m.kind in ("enter", "exit", "pass")
+                                                and m.s - self.progress < 150.0)),
+        }
+
+    def _info(self, cost: float, played: bool) -> dict[str, Any]:
+        ev = self.world.events
+        info = {
+            "step_cost": cost,
+            "tracking_cost": self.tracking_cost,
+            "vehicle_collisions": ev.vehicle_collisions,
+            "edge_strikes": ev.edge_strikes,
+            "collisions": ev.vehicle_collisions + ev.edge_strikes,
+            "traffic_collisions": ev.traffic_collisions,
+            "missed_turns": self.missed_turns,
+            "wrong_turns": self.wrong_turns,
+            "reroutes": self.reroutes,
+            "completed": self.completed,
+            "time": self.time,
+            "progress": self.progress / max(self.route.length, 1.0),
+            "played": played,
+            "explore_action": self.explore_action(),
+            "oracle_action": self.oracle_action(),
+        }
+        info.update(self.junction_info())
+        return info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from pernav.env.render import Renderer
+
+        if self._viewer is None:
+            self._viewer = Renderer()
+        return self._viewer.frame(self)
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None

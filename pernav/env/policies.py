@@ -1,0 +1,114 @@
+"""Rule-based prompt policies: the explore policy π^e and the oracle.
+
+Both apply the same A*-route-aware rules — "prepare" then "turn" before a turn, "enter the roundabout"
+on the approach, "turn right" for the roundabout exit, "keep left" for exits to pass — timed for a
+driver: the explore policy for the population-average driver, the oracle for the true user.
+
+Example:
+    >>> import gymnasium as gym
+    >>> import pernav
+    >>> env = gym.make("pernav/Town1-v0")
+    >>> obs, info = env.reset(seed=0, options={"route": 0})
+    >>> policy = explore_policy()
+    >>> policy(env.unwrapped.nav_view()) in range(7)
+    True
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
+from pernav.world.routing import Manoeuvre, Route
+from pernav.world.simulation import SPEED_RING, audio_duration
+
+TURN = {"left": 1, "right": 2}
+PREPARE = {"left": 3, "right": 4}
+ENTER, KEEP_LEFT, EXIT = 5, 6, 2
+
+
+@dataclass
+class NavView:
+    """What a navigation system knows at a step: its route and where the car is on it, and the
+    instructions it has played for the next manoeuvre."""
+
+    route: Route
+    progress: float
+    speed: float
+    last_action: int
+    played: set[int] = field(default_factory=set)  # instructions played for the next manoeuvre
+
+    def next_manoeuvre(self) -> Manoeuvre | None:
+        ahead = self.route.upcoming(self.progress)
+        return ahead[0] if ahead else None
+
+    def previous_manoeuvre(self) -> Manoeuvre | None:
+        passed = [m for m in self.route.manoeuvres if m.decision and m.s <= self.progress]
+        return passed[-1] if passed else None
+
+
+@dataclass
+class PromptPolicy:
+    """Prompt timing for one driver model (the lead distances follow from its parameters).
+
+    ``driver`` is what the navigation believes about the user; ``margin`` seconds of slack."""
+
+    driver: Driver
+    margin: float = 0.8
+    prepare_gap: float = 6.0
+
+    def _brake_distance(self, v: float, v_target: float) -> float:
+        b = 0.6 * self.driver.comfort_decel
+        return max(v * v - v_target * v_target, 0.0) / (2 * b)
+
+    def turn_lead(self, v: float) -> float:
+        """Metres before the stop line at which to say "turn": heard, understood, reacted to and
+        still in time to brake comfortably before the driver commits."""
+        d = self.driver
+        react = v * (audio_duration(1) + d.reaction_time + self.margin)
+        return react + max(v * d.decision_time, self._brake_distance(v, d.turn_speed))
+
+    def __call__(self, view: NavView) -> int:
+        d = self.driver
+        m = view.next_manoeuvre()
+        if m is None:
+            return 0
+        v = max(view.speed, 5.0)
+        dist = m.s - view.progress
+        desired = 0
+        if m.kind in TURN:
+            lead = self.turn_lead(v)
+            if dist <= lead:
+                desired = TURN[m.kind]
+            elif dist <= lead + v * (audio_duration(3) + self.prepare_gap):
+                desired = PREPARE[m.kind]
+        elif m.kind == "enter":
+            ring = min(SPEED_RING, d.turn_speed + 1.0)
+            if dist <= v * (audio_duration(5) + d.reaction_time + 1.5) + self._brake_distance(v, ring):
+                desired = ENTER
+        elif m.kind in ("exit", "pass"):
+            v = max(view.speed, 3.0)
+            commit = v * d.decision_time
+            lead = commit + v * (audio_duration(EXIT) + d.reaction_time + 0.4 * self.margin)
+            prev = view.previous_manoeuvre()
+            # the prompt must not be active before the driver has passed the previous exit
+            prev_ok = prev is None or prev.kind != "pass" or view.progress >= prev.s - 1.0
+            if dist <= lead and (prev_ok or dist <= commit + v * 0.5):
+                desired = EXIT if m.kind == "exit" else KEEP_LEFT
+        if desired == 0:
+            return 0
+        if desired in view.played:  # said already: hold it (no replay) or stay silent
+            return desired if view.last_action == desired else 0
+        if view.last_action == desired:  # same words for a new manoeuvre: pause once so it plays
+            return 0
+        return desired
+
+
+def explore_policy() -> PromptPolicy:
+    """π^e: prompts timed for the population-average driver in the average context."""
+    return PromptPolicy(resolve(POPULATION_AVERAGE, AVERAGE_CONTEXT))
+
+
+def oracle_policy(driver: Driver) -> PromptPolicy:
+    """The same rules re-timed with the true user's profile and context."""
+    return PromptPolicy(driver)

@@ -1,0 +1,762 @@
+"""The simulated world: a driver who hears voice instructions, IDM traffic with right-of-way, events.
+
+One :class:`World` holds a town's highway-env ``Road``, the driver's car (:class:`DriverCar`) and
+traffic (:class:`TrafficCar`), both highway-env vehicles. ``World.frame()`` advances one simulation
+frame; the gymnasium env runs ``frequency`` frames per policy step.
+
+How timing matters (SPEC.md §2): an instruction is acted on after its audio plus the driver's reaction
+time; the driver commits to a branch ``decision_time`` seconds before a junction; a turn instruction
+that arrives after that makes it swerve (hard braking, running wide: curb strikes, collisions) or miss
+the turn; one heard too early is forgotten after ``memory`` seconds or applied at an earlier junction.
+
+Example:
+    >>> from pernav.world.towns import get_town
+    >>> from pernav.world.drivers import resolve, named_user, Context
+    >>> town = get_town("Town1")
+    >>> world = World(town, resolve(named_user("user1"), Context()), town.routes[0], seed=0)
+    >>> for _ in range(10):
+    ...     world.frame()
+    >>> world.ego.speed > 0
+    True
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from highway_env import utils
+from highway_env.road.lane import CircularLane
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+from pernav.world.drivers import Driver
+from pernav.world.routing import Route
+from pernav.world.towns import (
+    ANGLE,
+    LANE_WIDTH,
+    RING_MERGE_ANGLE,
+    RING_RADIUS,
+    SPEED_RING,
+    LaneIndex,
+    Town,
+    turn_direction,
+)
+
+# --------------------------------------------------------------------------------------------------
+# Instructions
+
+ACTION_NAMES = (
+    "no instruction",
+    "turn left",
+    "turn right",
+    "prepare to turn left",
+    "prepare to turn right",
+    "enter the roundabout",
+    "keep left",
+)
+PLAYBACK = ("slower", "normal", "faster")
+PLAYBACK_SCALE = {"slower": 1.3, "normal": 1.0, "faster": 0.75}
+AUDIO_DURATION = (0.0, 1.2, 1.2, 1.9, 1.9, 1.6, 1.2)  # seconds at normal playback
+N_INSTRUCTIONS = len(ACTION_NAMES)
+
+
+def audio_duration(instruction: int, playback: str = "normal") -> float:
+    """Spoken duration of an instruction at a playback speed."""
+    return AUDIO_DURATION[instruction] * PLAYBACK_SCALE[playback]
+
+
+@dataclass
+class Heard:
+    """An instruction the driver understood: usable from ``active_at`` until ``expires_at``."""
+
+    instruction: int
+    heard_at: float
+    active_at: float
+    expires_at: float
+
+    @property
+    def direction(self) -> str | None:
+        return {1: "left", 2: "right", 3: "left", 4: "right"}.get(self.instruction)
+
+
+@dataclass
+class Events:
+    """Counters of what happened to the driver's car."""
+
+    vehicle_collisions: int = 0
+    edge_strikes: int = 0
+    traffic_collisions: int = 0  # traffic-traffic (should stay 0)
+    harsh_brakes: int = 0
+    swerves: int = 0
+    forgotten: int = 0
+    misunderstood: int = 0
+    ignored: int = 0
+    log: list = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------------------------------
+# Helpers shared by all cars
+
+
+def _wrap(a: float) -> float:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def idm_acceleration(speed: float, desired: float, gap: float, closing: float, headway: float,
+                     a_max: float, b: float) -> float:
+    """Intelligent Driver Model (Treiber) acceleration towards a leader ``gap`` metres ahead."""
+    s_star = 2.0 + speed * headway + speed * closing / (2.0 * np.sqrt(a_max * b))
+    free = 1.0 - (speed / max(desired, 0.1)) ** 4
+    return a_max * (free - (max(s_star, 0.0) / max(gap, 0.1)) ** 2)
+
+
+def braking_for(speed: float, v_max: float, distance: float) -> float:
+    """Constant deceleration needed to be at ``v_max`` after ``distance`` metres (0 if none)."""
+    if speed <= v_max:
+        return 0.0
+    return (speed**2 - v_max**2) / (2.0 * max(distance, 0.5))
+
+
+class PathCar:
+    """Mixin for cars that follow an explicit lane path (``path[0]`` is the current lane)."""
+
+    world: World
+    path: list[LaneIndex]
+    s: float
+
+    def path_lanes(self):
+        town = self.world.town
+        return [town.lane(i) for i in self.path]
+
+    def advance_path(self) -> None:
+        """Move to the next lane of the path once past the end of the current one."""
+        town = self.world.town
+        lane = town.lane(self.path[0])
+        self.s = lane.local_coordinates(self.position)[0]
+        while self.s > lane.length and len(self.path) > 1:
+            self.s -= lane.length
+            self.path.pop(0)
+            lane = town.lane(self.path[0])
+            self.s = lane.local_coordinates(self.position)[0]
+        self.lane_index, self.lane = self.path[0], lane
+
+    def distance_along(self, k: int) -> float:
+        """Distance from the car to the start of ``path[k]``."""
+        town = self.world.town
+        d = town.lane(self.path[0]).length - self.s
+        for i in range(1, k):
+            d += town.lane(self.path[i]).length
+        return d
+
+    def lane_steering(self, lateral_tau: float) -> float:
+        """highway-env's cascaded lateral controller applied to the path (looks into the next lane)."""
+        town = self.world.town
+        lane = town.lane(self.path[0])
+        s, lat = lane.local_coordinates(self.position)
+        ahead = s + max(self.speed, 1.0) * 0.35
+        if ahead > lane.length and len(self.path) > 1:
+            nxt = town.lane(self.path[1])
+            heading = nxt.heading_at(ahead - lane.length)
+        else:
+            heading = lane.heading_at(ahead)
+        v = max(self.speed, 0.5)
+        heading_cmd = np.arcsin(np.clip(-lat / lateral_tau / v, -1, 1))
+        heading_ref = heading + np.clip(heading_cmd, -np.pi / 4, np.pi / 4)
+        rate = _wrap(heading_ref - self.heading) / 0.25
+        slip = np.arcsin(np.clip(self.LENGTH / 2 / v * rate, -1, 1))
+        return float(np.arctan(2 * np.tan(slip)))
+
+    def speed_constraints(self, horizon: float) -> list[tuple[float, float]]:
+        """(distance, max speed) of slower lanes ahead on the path within ``horizon`` metres."""
+        town = self.world.town
+        out = []
+        d = town.lane(self.path[0]).length - self.s
+        for i in range(1, len(self.path)):
+            if d > horizon:
+                break
+            lane = town.lane(self.path[i])
+            out.append((d, self.lane_speed(lane)))
+            d += lane.length
+        return out
+
+    def lane_speed(self, lane) -> float:
+        return float(lane.speed_limit)
+
+
+# --------------------------------------------------------------------------------------------------
+# Right of way
+
+
+class RightOfWay:
+    """Junction right-of-way: a cross junction is held by cars of one arm at a time (they pass in
+    a platoon); a roundabout entry yields to cars on the ring near the merge point."""
+
+    def __init__(self, town: Town) -> None:
+        self.town = town
+        self.holders: dict[str, dict[int, str]] = {j: {} for j in town.junctions}
+
+    def release_stale(self, cars: list[Vehicle]) -> None:
+        alive = {id(c): c for c in cars}
+        for jid, holders in self.holders.items():
+            for key in list(holders):
+                car = alive.get(key)
+                if car is None or not self._involved(car, jid):
+                    del holders[key]
+
+    def _involved(self, car: PathCar, jid: str) -> bool:
+        lane = car.path[0]
+        if self.town.lane_junction.get(lane) == jid:
+            return True
+        return lane[1].startswith(f"{jid}:i")
+
+    def may_enter_cross(self, car: PathCar, jid: str, arm: str) -> bool:
+        holders = self.holders[jid]
+        if any(a != arm for k, a in holders.items() if k != id(car)):
+            return False
+        holders[id(car)] = arm
+        return True
+
+    def ring_clear(self, car: PathCar, jid: str, arm: str) -> bool:
+        j = self.town.junctions[jid]
+        merge = ANGLE[arm] - RING_MERGE_ANGLE
+        for other in self.world_cars:
+            if other is car:
+                continue
+            if self.town.lane_junction.get(other.path[0]) != jid or ":r" not in other.path[0][0]:
+                continue
+            phi = np.arctan2(other.position[1] - j.center[1], other.position[0] - j.center[0])
+            delta = _wrap(phi - merge) * RING_RADIUS  # > 0: upstream (circulation decreases phase)
+            if -7.0 < delta < 16.0:
+                return False
+        return True
+
+    world_cars: list = []
+
+
+# --------------------------------------------------------------------------------------------------
+# Traffic
+
+
+class TrafficCar(PathCar, IDMVehicle):
+    """IDM traffic (highway-env ``IDMVehicle``) on a random lane path, with right-of-way."""
+
+    def __init__(self, world: World, lane: LaneIndex, s: float, speed: float, desired: float) -> None:
+        town = world.town
+        ln = town.lane(lane)
+        super().__init__(world.road, ln.position(s, 0.0), ln.heading_at(s), speed, target_lane_index=lane,
+                         enable_lane_change=False)
+        self.world = world
+        self.path = [lane]
+        self.s = s
+        self.desired = desired
+        self.stuck_time = 0.0
+        self.extend()
+
+    def on_state_update(self) -> None:  # highway-env searches every lane here; we follow the path
+        pass
+
+    def extend(self) -> None:
+        succ = self.world.town.successors
+        rng = self.world.rng
+        while len(self.path) < 5:
+            options = succ[self.path[-1]]
+            if len(options) > 1 and any(":r" in o[1] and o[1].endswith("e") for o in options):
+                # on the ring: take an exit with probability 0.45, else keep circling
+                exits = [o for o in options if ":o" in o[1]]
+                stay = [o for o in options if o not in exits]
+                options = exits if (exits and rng.random() < 0.45) or not stay else stay
+            self.path.append(options[int(rng.integers(len(options)))])
+
+    def lane_speed(self, lane) -> float:
+        limit = float(lane.speed_limit)
+        if isinstance(lane, CircularLane):
+            return min(limit, 7.0)
+        return limit
+
+    def act(self, action=None) -> None:
+        self.advance_path()
+        self.extend()
+        world = self.world
+        desired = min(self.desired, self.lane_speed(self.lane))
+        acc = idm_acceleration(self.speed, desired, np.inf, 0.0, 1.5, 2.5, 4.0)
+        for d, vmax in self.speed_constraints(40.0):
+            need = braking_for(self.speed, vmax, d)
+            if need > 1.0:
+                acc = min(acc, -need)
+        leader, gap = world.leader_of(self)
+        if leader is not None:
+            closing = self.speed - float(np.dot(leader.velocity, self.direction))
+            acc = min(acc, idm_acceleration(self.speed, desired, gap, closing, 1.5, 2.5, 4.0))
+        stop = world.stop_line(self)
+        if stop is not None:
+            acc = min(acc, idm_acceleration(self.speed, desired, stop, self.speed, 1.0, 2.5, 4.0))
+        steering = np.clip(self.lane_steering(0.6), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE)
+        Vehicle.act(self, {"steering": float(steering), "acceleration": float(np.clip(acc, -7.0, 3.0))})
+
+    def step(self, dt: float) -> None:
+        Vehicle.step(self, dt)
+        self.speed = max(self.speed, 0.0)
+        self.stuck_time = self.stuck_time + dt if self.speed < 0.2 else 0.0
+
+
+# --------------------------------------------------------------------------------------------------
+# The driver's car
+
+
+class DriverCar(PathCar, Vehicle):
+    """The navigated car, driven by a simulated driver who knows only what it has heard."""
+
+    def __init__(self, world: World, driver: Driver, lane: LaneIndex, s: float) -> None:
+        town = world.town
+        ln = town.lane(lane)
+        super().__init__(world.road, ln.position(s, 0.0), ln.heading_at(s), 0.0)
+        self.LENGTH, self.WIDTH = driver.vehicle.length, driver.vehicle.width
+        self.world = world
+        self.driver = driver
+        self.path = [lane]
+        self.s = s
+        self.lane_index, self.lane = lane, ln
+        self.steer = 0.0
+        self.accel = 0.0
+        self.brake_input = 0.0
+        self.heard: list[Heard] = []
+        self.committed: set[str] = set()  # decision nodes already decided
+        self.swerving_until = -1.0
+        self.off_road = False
+        self.in_contact: set[int] = set()
+        self.last_choice: dict[str, str] = {}  # decision node -> movement taken
+        self.box: str | None = None  # junction whose lanes the car is on
+
+    def on_state_update(self) -> None:
+        pass
+
+    # ----- hearing ----------------------------------------------------------------------------
+    def hear(self, instruction: int, playback: str, now: float) -> None:
+        """The instruction was played: understood (or misheard) and acted on after audio + reaction."""
+        if instruction == 0:
+            return
+        d, rng, ev = self.driver, self.world.rng, self.world.events
+        if rng.random() > d.understanding(playback):
+            if instruction in (1, 2, 3, 4) and rng.random() < 0.5:  # misheard left <-> right
+                instruction = {1: 2, 2: 1, 3: 4, 4: 3}[instruction]
+                ev.misunderstood += 1
+            else:
+                ev.misunderstood += 1
+                return
+        if rng.random() > d.compliance:
+            ev.ignored += 1
+            return
+        active = now + audio_duration(instruction, playback) + d.reaction_time
+        if instruction in (1, 2):  # a new turn instruction replaces older ones
+            self.heard = [h for h in self.heard if h.instruction not in (1, 2, 6)]
+        elif instruction in (3, 4):
+            self.heard = [h for h in self.heard if h.instruction not in (3, 4)]
+        elif instruction == 6:
+            self.heard = [h for h in self.heard if h.instruction not in (1, 2)]
+        self.heard.append(Heard(instruction, now, active, active + d.memory))
+
+    def active(self, now: float, kinds: tuple[int, ...]) -> Heard | None:
+        for h in reversed(self.heard):
+            if h.instruction in kinds and h.active_at <= now < h.expires_at:
+                return h
+        return None
+
+    def forget(self, now: float) -> None:
+        for h in self.heard:
+            if h.expires_at <= now:
+                self.world.events.forgotten += 1
+        self.heard = [h for h in self.heard if h.expires_at > now]
+
+    def consume(self, kinds: tuple[int, ...], now: float) -> None:
+        self.heard = [h for h in self.heard if not (h.instruction in kinds and h.active_at <= now)]
+
+    # ----- perception of the path ---------------------------------------------------------------
+    def extend_forced(self, horizon: float = 120.0) -> None:
+        """Append lanes with a single successor (no decision) up to ``horizon`` metres ahead."""
+        succ = self.world.town.successors
+        while self.distance_along(len(self.path)) < horizon:
+            options = succ[self.path[-1]]
+            if len(options) != 1:
+                return
+            self.path.append(options[0])
+
+    def decision_node(self) -> tuple[str, float] | None:
+        """The next node where the driver must choose, and the distance to it."""
+        last = self.path[-1]
+        if len(self.world.town.successors[last]) > 1:
+            return last[1], self.distance_along(len(self.path))
+        return None
+
+    def _options(self, node: str) -> dict[str, list[LaneIndex]]:
+        """Movements available at ``node`` from the current road: movement -> lanes to append."""
+        town = self.world.town
+        last = self.path[-1]
+        jid = node.split(":")[0]
+        options: dict[str, list[LaneIndex]] = {}
+        if ":r" in node:  # ring exit point: exit or keep circling
+            for nxt in town.successors[last]:
+                options["exit" if ":o" in nxt[1] else "stay"] = [nxt]
+            return options
+        arm_in = node.split(":i")[1]
+        siblings = [(last[0], last[1], k) for k in range(len(town.network.graph[last[0]][last[1]]))]
+        # own lane first: prefer movements that do not need a lane change
+        for lane in sorted(siblings, key=lambda x: x != last):
+            for nxt in town.successors[lane]:
+                move = self._movement(nxt, jid, arm_in)
+                if move not in options:
+                    options[move] = [lane, nxt] if lane != last else [nxt]
+        return options
+
+    def _movement(self, first: LaneIndex, jid: str, arm_in: str) -> str:
+        town = self.world.town
+        lane = first
+        while not lane[1].startswith(f"{jid}:o"):
+            lane = town.successors[lane][0]
+        return turn_direction(arm_in, lane[1].split(":o")[1])
+
+    def commit(self, node: str, now: float, late: bool = False) -> None:
+        """Choose the branch at ``node`` from what the driver has heard, and extend the path."""
+        rng = self.world.rng
+        options = self._options(node)
+        turn = self.active(now, (1, 2))
+        prep = self.active(now, (3, 4))
+        if ":r" in node:
+            choice = "exit" if turn is not None and "exit" in options else "stay"
+            if choice == "exit":
+                self.consume((1, 2), now)
+        else:
+            choice = None
+            if turn is not None and turn.direction in options:
+                choice = turn.direction
+                self.consume((1, 2, 3, 4), now)
+            elif prep is not None and prep.direction in options and rng.random() < 0.5:
+                choice = prep.direction
+                self.consume((3, 4), now)
+            if choice is None:
+                choice = "straight" if "straight" in options else sorted(options)[int(rng.integers(len(options)))]
+        lanes = options[choice]
+        if len(lanes) == 2:  # lane change needed right before the junction
+            self.path[-1] = lanes[0]
+            lanes = lanes[1:]
+        self.path.extend(lanes)
+        self.committed.add(node)
+        self.last_choice[node] = choice
+        if late:
+            self.swerving_until = now + 3.0
+            self.world.events.swerves += 1
+
+    def recommit(self, node: str, k: int, now: float) -> None:
+        """A turn instruction arrived after the branch was chosen: swerve into it (SPEC.md §2)."""
+        del self.path[k:]
+        self.committed.discard(node)
+        self.commit(node, now, late=True)
+        self.extend_forced()
+
+    # ----- control ------------------------------------------------------------------------------
+    def act(self, action=None) -> None:
+        world, d = self.world, self.driver
+        now = world.time
+        self.advance_path()
+        self.forget(now)
+        self.extend_forced()
+        v = max(self.speed, 0.0)
+        v_seen = v * d.speed_misjudgement
+        town = world.town
+
+        # branch decisions
+        node_dist = self.decision_node()
+        if node_dist is not None:
+            node, dist = node_dist
+            if dist <= max(d.decision_time * v, 4.0):
+                self.commit(node, now)
+                self.extend_forced()
+        turn = self.active(now, (1, 2))
+        # late instruction after the commit: swerve if still before the stop line (SPEC.md §2)
+        approach = self.path[0][1]
+        if turn is not None and approach in self.committed and ":i" in approach and len(self.path) > 1:
+            dist = town.lane(self.path[0]).length - self.s
+            if dist > 2.0 and self.last_choice.get(approach) != turn.direction:
+                if turn.direction in self._options_at(1, approach):
+                    self.recommit(approach, 1, now)
+        # entering a junction box: what was heard before it was meant for this junction
+        in_box = town.lane_junction.get(self.path[0])
+        if in_box is not None and in_box != self.box and town.junctions[in_box].kind == "cross":
+            self.heard = [h for h in self.heard if not (h.instruction in (1, 2, 3, 4) and h.heard_at < now)]
+        self.box = in_box
+
+        # speed: cruise, slower lanes, planned turns, roundabouts, leader, right of way
+        limit = self.lane_speed(self.lane)
+        cruise = limit * d.speed_factor
+        acc = idm_acceleration(v, cruise, np.inf, 0.0, d.time_headway, d.comfort_accel, d.comfort_decel)
+        needs = []
+        for dist, vmax in self.speed_constraints(max(d.sight_distance, 60.0)):
+            needs.append(braking_for(v_seen, vmax, dist - 1.0))
+        nd = self.decision_node()
+        if nd is not None and ":i" in nd[0]:
+            node, dist = nd
+            j = town.junction_of_node(node)
+            expect = self.active(now, (1, 2)) or self.active(now, (3, 4))
+            if j is not None and dist < d.sight_distance:
+                if j.kind == "roundabout":
+                    needs.append(braking_for(v_seen, self.ring_speed(), dist))
+                elif expect is not None:
+                    target = d.turn_speed if expect.instruction in (1, 2) else 0.5 * (d.turn_speed + cruise)
+                    needs.append(braking_for(v_seen, target, dist))
+        if self.active(now, (5,)) is not None and nd is not None:
+            j = town.junction_of_node(nd[0])
+            if j is not None and j.kind == "roundabout":
+                needs.append(braking_for(v_seen, self.ring_speed(), nd[1]))
+        prep = self.active(now, (3, 4))
+        if prep is not None and town.lane_junction.get(self.path[0]) is None:
+            acc = min(acc, idm_acceleration(v, 0.75 * cruise, np.inf, 0, 1, d.comfort_accel, d.comfort_decel))
+            self.lane_for(prep.direction)
+        need = max(needs, default=0.0)
+        harsh_limit = d.vehicle.max_decel
+        if need > 0.55 * d.comfort_decel:
+            if need > 1.3 * d.comfort_decel and self.accel > -d.comfort_decel:
+                world.events.harsh_brakes += 1
+            acc = min(acc, -min(need, harsh_limit))
+        leader, gap = world.leader_of(self)
+        if leader is not None:
+            closing = v - float(np.dot(leader.velocity, self.direction))
+            acc = min(acc, idm_acceleration(v, cruise, gap, closing, d.time_headway, d.comfort_accel,
+                                            d.comfort_decel))
+        stop = world.stop_line(self)
+        if stop is not None:
+            acc = min(acc, idm_acceleration(v, cruise, stop, v, 1.0, d.comfort_accel, d.comfort_decel))
+        if now < self.swerving_until:
+            acc = min(acc, -0.8 * harsh_limit) if v > d.turn_speed else acc
+        acc = float(np.clip(acc, -harsh_limit, d.comfort_accel * 1.5))
+
+        steer_cmd = self.lane_steering(d.steering_tau)
+        if d.keyboard:  # on/off keys: pedals in steps, steering ramps at a fixed rate
+            acc = 0.0 if abs(acc) < 0.4 else (d.comfort_accel * 1.3 if acc > 0 else min(acc * 1.25, -1.5))
+            acc = max(acc, -harsh_limit)
+            err = steer_cmd - self.steer
+            if abs(err) > 0.035:
+                self.steer += np.sign(err) * min(abs(err), 1.6 * world.dt)
+        else:
+            self.steer += (steer_cmd - self.steer) * min(1.0, world.dt / 0.12)
+        self.steer = float(np.clip(self.steer, -d.vehicle.max_steering, d.vehicle.max_steering))
+        self.accel = acc
+        self.brake_input = float(np.clip(-acc / harsh_limit, 0.0, 1.0))
+        self.action = {"steering": self.steer, "acceleration": acc}
+
+    def _options_at(self, k: int, node: str) -> dict[str, list[LaneIndex]]:
+        saved = self.path[k:]
+        del self.path[k:]
+        try:
+            return self._options(node)
+        finally:
+            self.path.extend(saved)
+
+    def ring_speed(self) -> float:
+        return min(SPEED_RING, self.driver.turn_speed + 1.0)
+
+    def lane_speed(self, lane) -> float:
+        limit = float(lane.speed_limit)
+        if isinstance(lane, CircularLane):
+            return min(limit, self.driver.turn_speed) if lane.radius < 18 else min(limit, self.ring_speed())
+        return limit
+
+    def lane_for(self, direction: str | None) -> None:
+        """Get into the lane a coming turn needs (left lane for left, right lane for right)."""
+        town = self.world.town
+        cur = self.path[0]
+        if town.lane_junction.get(cur) is not None or direction is None:
+            return
+        n = len(town.network.graph[cur[0]][cur[1]])
+        if n < 2:
+            return
+        want = 0 if direction == "left" else n - 1
+        if cur[2] != want and len(self.path) == 1:
+            self.path[0] = (cur[0], cur[1], want)
+
+    def step(self, dt: float) -> None:
+        """Kinematic bicycle with a grip limit: beyond ``max_lateral_accel`` the car runs wide."""
+        v = self.speed
+        beta = np.arctan(0.5 * np.tan(self.steer))
+        yaw_rate = v * np.sin(beta) / (self.LENGTH / 2)
+        grip = self.driver.vehicle.max_lateral_accel / max(v, 0.1)
+        yaw_rate = float(np.clip(yaw_rate, -grip, grip))
+        self.position = self.position + v * np.array([np.cos(self.heading + beta), np.sin(self.heading + beta)]) * dt
+        self.heading = _wrap(self.heading + yaw_rate * dt)
+        self.speed = max(0.0, v + self.accel * dt)
+
+
+# --------------------------------------------------------------------------------------------------
+# The world
+
+
+class World:
+    """A town, a driver's car on a route, traffic around it, right-of-way and event counters."""
+
+    def __init__(self, town: Town, driver: Driver, route: Route, seed: int = 0, n_traffic: int = 8,
+                 frequency: int = 10) -> None:
+        self.town = town
+        self.rng = np.random.default_rng(seed)
+        self.road = Road(network=town.network, np_random=np.random.RandomState(seed))
+        self.dt = 1.0 / frequency
+        self.time = 0.0
+        self.events = Events()
+        self.row = RightOfWay(town)
+        self.ego = DriverCar(self, driver, route.lanes[0], route.start_s)
+        self.ego.speed = 0.0
+        self.road.vehicles.append(self.ego)
+        self.n_traffic = n_traffic
+        self.traffic: list[TrafficCar] = []
+        for _ in range(n_traffic):
+            self.spawn_traffic(initial=True)
+
+    @property
+    def cars(self) -> list[Vehicle]:
+        return self.road.vehicles
+
+    # ----- traffic population -----------------------------------------------------------------
+    def spawn_traffic(self, initial: bool = False) -> None:
+        town, rng = self.town, self.rng
+        for _ in range(50):
+            lane_i = town.road_lanes[int(rng.integers(len(town.road_lanes)))]
+            lane = town.lane(lane_i)
+            if lane.length < 40:
+                continue
+            s = float(rng.uniform(10.0, lane.length - 25.0))
+            p = lane.position(s, 0.0)
+            dist_ego = np.linalg.norm(p - self.ego.position)
+            if not (40.0 < dist_ego < (220.0 if initial else 260.0)) or (not initial and dist_ego < 90.0):
+                continue
+            if any(np.linalg.norm(p - c.position) < 25.0 for c in self.cars):
+                continue
+            desired = float(lane.speed_limit * rng.uniform(0.8, 1.0))
+            car = TrafficCar(self, lane_i, s, desired * 0.8, desired)
+            self.traffic.append(car)
+            self.road.vehicles.append(car)
+            return
+
+    def remove(self, car: TrafficCar) -> None:
+        self.traffic.remove(car)
+        self.road.vehicles.remove(car)
+
+    def maintain_traffic(self) -> None:
+        for car in list(self.traffic):
+            far = np.linalg.norm(car.position - self.ego.position) > 300.0
+            if far or car.stuck_time > 40.0 or car.crashed:
+                self.remove(car)
+        while len(self.traffic) < self.n_traffic:
+            before = len(self.traffic)
+            self.spawn_traffic()
+            if len(self.traffic) == before:
+                break
+
+    # ----- perception shared by all cars ------------------------------------------------------
+    def leader_of(self, car: PathCar) -> tuple[Vehicle | None, float]:
+        """Nearest car ahead: on the car's own lane path, or in its corridor straight ahead."""
+        best, best_gap = None, np.inf
+        town = self.town
+        ahead = {lane: i for i, lane in enumerate(car.path[:4])}
+        starts = [0.0]
+        for i in range(1, len(car.path[:4])):
+            starts.append(starts[-1] + town.lane(car.path[i - 1]).length)
+        h = car.direction
+        for other in self.cars:
+            if other is car:
+                continue
+            rel = other.position - car.position
+            dist = float(np.hypot(*rel))
+            if dist > 60.0:
+                continue
+            half = (car.LENGTH + other.LENGTH) / 2
+            k = ahead.get(other.path[0])
+            gap = np.inf
+            if k is not None:
+                along = starts[k] + other.s - car.s
+                if along > 0:
+                    gap = along - half
+            lon = float(np.dot(rel, h))
+            lat = abs(float(rel[0] * h[1] - rel[1] * h[0]))
+            if 0 < lon < 35.0 and lat < (car.WIDTH + other.WIDTH) / 2 + 0.4:
+                gap = min(gap, lon - half)
+            if gap < best_gap:
+                best, best_gap = other, gap
+        return best, best_gap
+
+    def stop_line(self, car: PathCar) -> float | None:
+        """Distance to a stop line the car must respect (junction held by another arm, or ring
+        traffic at a roundabout entry), or None."""
+        town = self.town
+        d = town.lane(car.path[0]).length - car.s
+        for i in range(1, min(len(car.path), 4)):
+            prev, lane = car.path[i - 1], car.path[i]
+            jid = town.lane_junction.get(lane)
+            if jid is not None and town.lane_junction.get(prev) is None:
+                if d > 35.0:
+                    return None
+                j = town.junctions[jid]
+                arm = prev[1].split(":i")[1]
+                if j.kind == "roundabout":
+                    entry_len = town.lane(lane).length
+                    if not self.row.ring_clear(car, jid, arm):
+                        return max(d + entry_len - 3.0, 0.1)
+                    return None
+                if not j.is_decision:
+                    return None
+                if not self.row.may_enter_cross(car, jid, arm):
+                    return max(d - 1.0, 0.1)
+                return None
+            d += town.lane(lane).length
+        return None
+
+    # ----- simulation -------------------------------------------------------------------------
+    def frame(self) -> None:
+        """One simulation frame: decisions, dynamics, collisions and curb strikes."""
+        self.row.world_cars = self.cars
+        self.row.release_stale(self.cars)
+        for car in self.cars:
+            car.act()
+        for car in self.cars:
+            car.step(self.dt)
+        self.time += self.dt
+        self._collisions()
+        self._curb()
+
+    def _collisions(self) -> None:
+        cars = self.cars
+        pos = np.array([c.position for c in cars])
+        ego = self.ego
+        for i in range(len(cars)):
+            d = np.linalg.norm(pos[i + 1 :] - pos[i], axis=1)
+            for k in np.nonzero(d < 6.5)[0]:
+                a, b = cars[i], cars[i + 1 + k]
+                if not utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2), np.zeros(2))[0]:
+                    if ego in (a, b):
+                        ego.in_contact.discard(id(b if a is ego else a))
+                    continue
+                if ego in (a, b):
+                    other = b if a is ego else a
+                    if id(other) not in ego.in_contact:
+                        ego.in_contact.add(id(other))
+                        self.events.vehicle_collisions += 1
+                        self.events.log.append(("collision", round(self.time, 1)))
+                        ego.speed *= 0.3
+                        other.crashed = True
+                else:
+                    self.events.traffic_collisions += 1
+                    a.crashed = b.crashed = True
+
+    def _curb(self) -> None:
+        ego = self.ego
+        threshold = LANE_WIDTH / 2 - ego.WIDTH / 2 + 0.75
+        off = self.town.lane_grid.distance_to_road(ego.position) > threshold and not self._in_box(ego.position)
+        if off and not ego.off_road:
+            self.events.edge_strikes += 1
+            self.events.log.append(("edge", round(self.time, 1)))
+            ego.speed *= 0.6
+        ego.off_road = off
+
+    def _in_box(self, p: np.ndarray) -> bool:
+        for j in self.town.junctions.values():
+            if j.kind == "cross" and np.max(np.abs(p - j.center)) < j.size - 1.0:
+                return True
+        return False
