@@ -144,12 +144,8 @@ class NavigationEnv(gym.Env):
         return instruction * 3 + PLAYBACK.index(playback) if self.config["adaptive_speed"] else instruction
 
     def nav_view(self) -> NavView:
-        played = {i for i, m in self._played if m == self._next_key()}
-        return NavView(self.route, self.progress, float(self.world.ego.speed), self.last_instruction, played)
-
-    def _next_key(self) -> tuple:
-        m = NavView(self.route, self.progress, 0.0, 0).next_manoeuvre()
-        return (self.reroutes, m.node if m else None)
+        log = [(i, s) for i, s, r in self._played if r == self.reroutes]
+        return NavView(self.route, self.progress, float(self.world.ego.speed), self.last_instruction, log)
 
     def policy_action(self, policy: PromptPolicy) -> int:
         """The action a prompt policy takes now, in this env's action space."""
@@ -191,7 +187,7 @@ class NavigationEnv(gym.Env):
         self.time = 0.0
         self.time_limit = self.config["time_limit_factor"] * self.route.length / self.config["nominal_speed"] + 30.0
         self.last_instruction, self.repeat = 0, 0
-        self._played: list[tuple[int, tuple]] = []
+        self._played: list[tuple[int, float, int]] = []  # (instruction, route progress, reroutes)
         self.tracking_cost = 0.0
         self.missed_turns = self.wrong_turns = self.reroutes = 0
         self.completed = False
@@ -205,7 +201,7 @@ class NavigationEnv(gym.Env):
         played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
         if played:
             self.world.ego.hear(instruction, playback, self.world.time)
-            self._played.append((instruction, self._next_key()))
+            self._played.append((instruction, self.progress, self.reroutes))
             self.repeat = 0
         else:
             self.repeat += 1

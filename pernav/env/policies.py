@@ -36,15 +36,20 @@ class NavView:
     progress: float
     speed: float
     last_action: int
-    played: set[int] = field(default_factory=set)  # instructions played for the next manoeuvre
-
-    def next_manoeuvre(self) -> Manoeuvre | None:
-        ahead = self.route.upcoming(self.progress)
-        return ahead[0] if ahead else None
+    log: list[tuple[int, float]] = field(default_factory=list)  # (instruction, progress) played on this route
 
     def previous_manoeuvre(self) -> Manoeuvre | None:
         passed = [m for m in self.route.manoeuvres if m.decision and m.s <= self.progress]
         return passed[-1] if passed else None
+
+    def played_for(self, target: Manoeuvre) -> set[int]:
+        """Instructions played since the last junction before ``target`` (a roundabout's entry and
+        exits share one window: their prompts may come before the entry)."""
+        start = 0.0
+        for m in self.route.manoeuvres:
+            if m.decision and m.s < target.s and m.kind in ("left", "right", "straight"):
+                start = m.s
+        return {i for i, s in self.log if s >= start}
 
 
 @dataclass
@@ -68,11 +73,30 @@ class PromptPolicy:
         react = v * (audio_duration(1) + d.reaction_time + self.margin)
         return react + max(v * d.decision_time, self._brake_distance(v, d.turn_speed))
 
+    def exit_lead(self, v: float) -> tuple[float, float]:
+        """(commit distance, prompt distance) before a roundabout exit."""
+        d = self.driver
+        commit = v * d.decision_time
+        return commit, commit + v * (audio_duration(EXIT) + d.reaction_time + 1.25 * self.margin)
+
+    def _exit_due(self, view: NavView, exit_: Manoeuvre, before: Manoeuvre | None) -> bool:
+        """Say "turn right" for ``exit_`` now? Not so early that the driver would take the exit
+        before it (``before``, a ring exit it must pass)."""
+        v = max(view.speed, 3.0)
+        commit, lead = self.exit_lead(v)
+        if exit_.s - view.progress > lead:
+            return False
+        if before is None or before.kind == "enter":
+            return True
+        active_at = view.progress + v * (audio_duration(EXIT) + self.driver.reaction_time)
+        return active_at >= before.s - commit + 1.0
+
     def __call__(self, view: NavView) -> int:
         d = self.driver
-        m = view.next_manoeuvre()
-        if m is None:
+        ahead = view.route.upcoming(view.progress)
+        if not ahead:
             return 0
+        m = target = ahead[0]
         v = max(view.speed, 5.0)
         dist = m.s - view.progress
         desired = 0
@@ -82,22 +106,22 @@ class PromptPolicy:
                 desired = TURN[m.kind]
             elif dist <= lead + v * (audio_duration(3) + self.prepare_gap):
                 desired = PREPARE[m.kind]
-        elif m.kind == "enter":
-            ring = min(SPEED_RING, d.turn_speed + 1.0)
-            if dist <= v * (audio_duration(5) + d.reaction_time + 1.5) + self._brake_distance(v, ring):
-                desired = ENTER
-        elif m.kind in ("exit", "pass"):
-            v = max(view.speed, 3.0)
-            commit = v * d.decision_time
-            lead = commit + v * (audio_duration(EXIT) + d.reaction_time + 0.4 * self.margin)
-            prev = view.previous_manoeuvre()
-            # the prompt must not be active before the driver has passed the previous exit
-            prev_ok = prev is None or prev.kind != "pass" or view.progress >= prev.s - 1.0
-            if dist <= lead and (prev_ok or dist <= commit + v * 0.5):
-                desired = EXIT if m.kind == "exit" else KEEP_LEFT
+        elif m.kind in ("enter", "pass"):
+            exit_ = next((x for x in ahead[1:] if x.kind == "exit"), None)
+            passes = [x for x in ahead[1:] if x.kind == "pass" and exit_ is not None and x.s < exit_.s]
+            if exit_ is not None and not passes and self._exit_due(view, exit_, m):
+                desired, target = EXIT, exit_
+            elif m.kind == "enter":
+                ring = min(SPEED_RING, d.turn_speed + 1.0)
+                if dist <= v * (audio_duration(5) + d.reaction_time + 1.5) + self._brake_distance(v, ring):
+                    desired = ENTER
+            elif dist <= self.exit_lead(max(view.speed, 3.0))[1]:
+                desired = KEEP_LEFT
+        elif m.kind == "exit" and self._exit_due(view, m, view.previous_manoeuvre()):
+            desired = EXIT
         if desired == 0:
             return 0
-        if desired in view.played:  # said already: hold it (no replay) or stay silent
+        if desired in view.played_for(target):  # said already: hold it (no replay) or stay silent
             return desired if view.last_action == desired else 0
         if view.last_action == desired:  # same words for a new manoeuvre: pause once so it plays
             return 0

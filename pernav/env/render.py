@@ -16,7 +16,7 @@ class Renderer:
         import pygame
         from highway_env.road.graphics import WorldSurface
 
-        pygame.init()
+        pygame.font.init()  # fonts only: pygame.init() would open audio devices
         self.pygame = pygame
         self.size = size
         self.surface = WorldSurface(size, 0, pygame.Surface(size))

@@ -153,12 +153,16 @@ class Route:
 
 
 def _assign_lanes(town: Town, nodes: list[str], last_id: int) -> list[LaneIndex]:
-    """Concrete lanes for a node path, chosen backwards so every lane leads into the next one."""
+    """Concrete lanes for a node path, chosen backwards so every lane leads into the next one (or
+    into a parallel lane of it: the driver changes lane on the way)."""
+    graph = town.network.graph
     lanes: list[LaneIndex] = [(nodes[-2], nodes[-1], last_id)]
     for a, b in zip(reversed(nodes[:-2]), reversed(nodes[1:-1]), strict=True):
         nxt = lanes[-1]
-        n = len(town.network.graph[a][b])
+        parallel = [(nxt[0], nxt[1], k) for k in range(len(graph[nxt[0]][nxt[1]]))]
+        n = len(graph[a][b])
         ok = [j for j in range(n) if nxt in town.successors[(a, b, j)]]
+        ok = ok or [j for j in range(n) if any(p in town.successors[(a, b, j)] for p in parallel)]
         if not ok:
             raise RouteError(f"no lane of {a}->{b} leads into {nxt}")
         lanes.append((a, b, nxt[2] if nxt[2] in ok else ok[-1]))

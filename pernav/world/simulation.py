@@ -659,6 +659,12 @@ class World:
         starts = [0.0]
         for i in range(1, len(car.path[:4])):
             starts.append(starts[-1] + town.lane(car.path[i - 1]).length)
+        graph = town.network.graph
+        siblings = {}  # lanes leaving the same node overlap at first: treat them as our own lane
+        for k, lane in enumerate(car.path[1:4], start=1):
+            for to, lanes in graph[lane[0]].items():
+                for i in range(len(lanes)):
+                    siblings.setdefault((lane[0], to, i), k)
         h = car.direction
         for other in self.cars:
             if other is car:
@@ -669,6 +675,8 @@ class World:
                 continue
             half = (car.LENGTH + other.LENGTH) / 2
             k = ahead.get(other.path[0])
+            if k is None and other.s < 15.0:
+                k = siblings.get(other.path[0])
             gap = np.inf
             if k is not None:
                 along = starts[k] + other.s - car.s
@@ -741,7 +749,7 @@ class World:
                         self.events.log.append(("collision", round(self.time, 1)))
                         ego.speed *= 0.3
                         other.crashed = True
-                else:
+                elif not (a.crashed and b.crashed):
                     self.events.traffic_collisions += 1
                     a.crashed = b.crashed = True
 

@@ -1,0 +1,112 @@
+"""The ``pernav`` command line: towns, drive, bench.
+
+Bad input is reported as one line on stderr with exit code 2 (never a traceback).
+
+Example:
+    $ pernav towns --out maps/
+    $ pernav drive --town Town3 --policy oracle --user user3 --visual foggy --routes 0 1 --json
+    $ pernav bench sim --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
+from pernav.world.routing import RouteError
+from pernav.world.towns import TOWN_NAMES, TownError
+
+
+class UsageError(ValueError):
+    """Bad command-line input (reported in one line, exit code 2)."""
+
+
+def _towns(args: argparse.Namespace) -> None:
+    from pernav.world.plotting import plot_town
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    for name in args.towns or TOWN_NAMES:
+        path = plot_town(name, out / f"{name}.png")
+        print(path)
+
+
+def _drive(args: argparse.Namespace) -> None:
+    from pernav.env.episodes import drive_routes
+
+    context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
+    results = drive_routes(args.town, args.policy, args.user, routes=args.routes, context=context,
+                           seed=args.seed, n_traffic=args.traffic, gif=args.gif)
+    if args.json:
+        print(json.dumps(results, indent=2))
+        return
+    print(f"{'route':>5} {'done':>5} {'time':>6} {'cost':>9} {'coll':>5} {'edge':>5} {'miss':>5} {'wrong':>5}")
+    for r in results["episodes"]:
+        print(f"{r['route']:>5} {str(r['completed']):>5} {r['time']:>6.0f} {r['tracking_cost']:>9.0f} "
+              f"{r['vehicle_collisions']:>5} {r['edge_strikes']:>5} {r['missed_turns']:>5} {r['wrong_turns']:>5}")
+    s = results["summary"]
+    print(f"mean tracking cost {s['tracking_cost']:.0f}, collisions {s['collisions']}, "
+          f"completion {s['completion']:.0%}")
+
+
+def _bench(args: argparse.Namespace) -> None:
+    from pernav.bench import run_benchmarks
+
+    figures = run_benchmarks(args.which, quick=args.quick)
+    if args.json:
+        print(json.dumps(figures, indent=2))
+    else:
+        for name, fig in figures.items():
+            print(f"[{name}]")
+            for k, v in fig.items():
+                print(f"  {k}: {v}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="pernav", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("towns", help="draw every town with its routes (one PNG per town)")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--towns", nargs="+", choices=TOWN_NAMES, help="only these towns")
+    p.set_defaults(func=_towns)
+
+    p = sub.add_parser("drive", help="drive routes with one policy and one user; per-episode metrics")
+    p.add_argument("--town", required=True, help=f"one of {', '.join(TOWN_NAMES)}")
+    p.add_argument("--policy", required=True, choices=["explore", "oracle"])
+    p.add_argument("--user", required=True, help="user1..user7, or a JSON/YAML profile (with context) file")
+    p.add_argument("--routes", nargs="+", type=int, help="route indices 0-9 (default: all ten)")
+    for key, choices in CONTEXT_CHOICES.items():
+        p.add_argument(f"--{key}", choices=choices, help=f"context override ({key})")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--traffic", type=int, default=8, help="traffic cars around the driver (default 8)")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--gif", help="write an animated replay of the first route to this file")
+    p.set_defaults(func=_drive)
+
+    p = sub.add_parser("bench", help="benchmarks, as ratios measured in one run")
+    p.add_argument("which", nargs="?", default="all", choices=["sim", "all"])
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quick", action="store_true", help="shorter measurement (for smoke tests)")
+    p.set_defaults(func=_bench)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        args.func(args)
+    except (UsageError, TownError, ProfileError, RouteError, ValueError, FileNotFoundError) as exc:
+        print(f"pernav {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
