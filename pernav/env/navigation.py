@@ -102,7 +102,7 @@ def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
 class NavigationEnv(gym.Env):
     """Voice navigation of a simulated driver through a town (SPEC.md §2).
 
-    ``reset(options=...)``: ``route`` (index 0-9), ``user`` (name, mapping, file or
+    ``reset(options=...)``: ``route`` (index 0-9, or a :class:`Route` of this town), ``user`` (name, mapping, file or
     :class:`DriverProfile`), ``context`` (:class:`Context` or mapping). Actions: 0-6 (or 0-20 with
     ``adaptive_speed``: ``instruction * 3 + playback``, playback 0 slower / 1 normal / 2 faster).
     """
@@ -164,7 +164,8 @@ class NavigationEnv(gym.Env):
         unknown = sorted(set(options) - {"route", "user", "context"})
         if unknown:
             raise ValueError(f"unknown reset option {unknown[0]!r}; allowed: route, user, context")
-        if "route" in options:
+        custom = options.get("route") if isinstance(options.get("route"), Route) else None
+        if "route" in options and custom is None:
             idx = options["route"]
             if isinstance(idx, bool) or not isinstance(idx, (int, np.integer)) or not 0 <= idx < len(self.town.routes):
                 raise TownError(f"route index {idx!r} out of range [0, {len(self.town.routes) - 1}] for {self.town.name}")
@@ -178,7 +179,7 @@ class NavigationEnv(gym.Env):
             self.context = ctx if isinstance(ctx, Context) else Context(**ctx)
         self.driver = resolve(self.profile, self.context)
         self._oracle = oracle_policy(self.driver)
-        self.route = self.town.routes[self.route_index]
+        self.route = custom or self.town.routes[self.route_index]
         self.goal_lane, self.goal_s = self.route.lanes[-1], self.route.end_s
         world_seed = int(self.np_random.integers(2**31 - 1))
         self.world = World(self.town, self.driver, self.route, seed=world_seed,

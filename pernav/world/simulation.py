@@ -90,7 +90,8 @@ class Events:
     traffic_collisions: int = 0  # traffic-traffic (should stay 0)
     harsh_brakes: int = 0
     swerves: int = 0
-    forgotten: int = 0
+    forgotten: int = 0  # instructions that faded from memory unused
+    discarded: int = 0  # instructions dropped on entering a junction (too late for it)
     misunderstood: int = 0
     ignored: int = 0
     log: list = field(default_factory=list)
@@ -114,7 +115,7 @@ def idm_acceleration(speed: float, desired: float, gap: float, closing: float, h
 
 def braking_for(speed: float, v_max: float, distance: float) -> float:
     """Constant deceleration needed to be at ``v_max`` after ``distance`` metres (0 if none)."""
-    if speed <= v_max:
+    if speed <= v_max + 0.5 or distance < 2.0:  # small excesses are absorbed by the turn itself
         return 0.0
     return (speed**2 - v_max**2) / (2.0 * max(distance, 0.5))
 
@@ -328,6 +329,7 @@ class DriverCar(PathCar, Vehicle):
         self.in_contact: set[int] = set()
         self.last_choice: dict[str, str] = {}  # decision node -> movement taken
         self.box: str | None = None  # junction whose lanes the car is on
+        self.approach_options: dict[str, dict[str, list[LaneIndex]]] = {}  # movements seen at commit
 
     def on_state_update(self) -> None:
         pass
@@ -436,6 +438,7 @@ class DriverCar(PathCar, Vehicle):
                 self.consume((3, 4), now)
             if choice is None:
                 choice = "straight" if "straight" in options else sorted(options)[int(rng.integers(len(options)))]
+        self.approach_options[node] = options
         lanes = options[choice]
         if len(lanes) == 2:  # lane change needed right before the junction
             self.path[-1] = lanes[0]
@@ -473,17 +476,31 @@ class DriverCar(PathCar, Vehicle):
                 self.commit(node, now)
                 self.extend_forced()
         turn = self.active(now, (1, 2))
-        # late instruction after the commit: swerve if still before the stop line (SPEC.md §2)
+        # late instruction after the commit: swerve if still before the stop line or just past it
+        # (SPEC.md §2: harsh braking, sharp steering, running wide), otherwise the turn is missed
         approach = self.path[0][1]
         if turn is not None and approach in self.committed and ":i" in approach and len(self.path) > 1:
             dist = town.lane(self.path[0]).length - self.s
-            if dist > 2.0 and self.last_choice.get(approach) != turn.direction:
+            if dist > 0.0 and self.last_choice.get(approach) != turn.direction:
                 if turn.direction in self._options_at(1, approach):
                     self.recommit(approach, 1, now)
+        elif turn is not None and self.path[0][0] in self.committed and ":i" in self.path[0][0] \
+                and self.s < 5.0 and self.last_choice.get(self.path[0][0]) == "straight":
+            node = self.path[0][0]
+            lanes = self.approach_options[node].get(turn.direction)
+            if lanes:
+                self.path = list(lanes[-1:])
+                self.last_choice[node] = turn.direction
+                self.swerving_until = now + 3.0
+                world.events.swerves += 1
+                self.advance_path()
+                self.extend_forced()
         # entering a junction box: what was heard before it was meant for this junction
         in_box = town.lane_junction.get(self.path[0])
         if in_box is not None and in_box != self.box and town.junctions[in_box].kind == "cross":
-            self.heard = [h for h in self.heard if not (h.instruction in (1, 2, 3, 4) and h.heard_at < now)]
+            dropped = [h for h in self.heard if h.instruction in (1, 2, 3, 4) and h.heard_at < now]
+            world.events.discarded += len(dropped)
+            self.heard = [h for h in self.heard if h not in dropped]
         self.box = in_box
 
         # speed: cruise, slower lanes, planned turns, roundabouts, leader, right of way
@@ -515,7 +532,7 @@ class DriverCar(PathCar, Vehicle):
         need = max(needs, default=0.0)
         harsh_limit = d.vehicle.max_decel
         if need > 0.55 * d.comfort_decel:
-            if need > 1.3 * d.comfort_decel and self.accel > -d.comfort_decel:
+            if need > 1.5 * d.comfort_decel and self.accel > -d.comfort_decel:
                 world.events.harsh_brakes += 1
             acc = min(acc, -min(need, harsh_limit))
         leader, gap = world.leader_of(self)
@@ -531,6 +548,8 @@ class DriverCar(PathCar, Vehicle):
         acc = float(np.clip(acc, -harsh_limit, d.comfort_accel * 1.5))
 
         steer_cmd = self.lane_steering(d.steering_tau)
+        if now < self.swerving_until - 1.5:  # panic: a sharp, over-corrected yank of the wheel
+            steer_cmd *= 1.8
         if d.keyboard:  # on/off keys: pedals in steps, steering ramps at a fixed rate
             acc = 0.0 if abs(acc) < 0.4 else (d.comfort_accel * 1.3 if acc > 0 else min(acc * 1.25, -1.5))
             acc = max(acc, -harsh_limit)
@@ -575,11 +594,15 @@ class DriverCar(PathCar, Vehicle):
             self.path[0] = (cur[0], cur[1], want)
 
     def step(self, dt: float) -> None:
-        """Kinematic bicycle with a grip limit: beyond ``max_lateral_accel`` the car runs wide."""
+        """Kinematic bicycle with a friction circle: braking hard leaves little grip for turning,
+        and beyond the lateral grip the car runs wide."""
         v = self.speed
+        veh = self.driver.vehicle
         beta = np.arctan(0.5 * np.tan(self.steer))
         yaw_rate = v * np.sin(beta) / (self.LENGTH / 2)
-        grip = self.driver.vehicle.max_lateral_accel / max(v, 0.1)
+        total = max(veh.max_decel, veh.max_lateral_accel) + 0.5
+        lateral = min(veh.max_lateral_accel, np.sqrt(max(total**2 - self.accel**2, 1.0)))
+        grip = lateral / max(v, 0.1)
         yaw_rate = float(np.clip(yaw_rate, -grip, grip))
         self.position = self.position + v * np.array([np.cos(self.heading + beta), np.sin(self.heading + beta)]) * dt
         self.heading = _wrap(self.heading + yaw_rate * dt)

@@ -1,0 +1,161 @@
+"""HistoryWindow: the last K (state, action) pairs as one tensordict entry, with no hidden state."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+from torchrl.data import Composite, Unbounded
+from torchrl.envs.transforms import Transform
+
+__all__ = ["HistoryWindow"]
+
+
+class HistoryWindow(Transform):
+    """The last ``K`` (state, one-hot action) pairs under ``out_key``, shape ``[..., K, S + n_actions]``.
+
+    Convention, at time ``t`` (the root of a step's tensordict)::
+
+        history[..., i, :S] = s_{t-K+1+i}
+        history[..., i, S:] = one_hot(a_{t-K+1+i})     for i < K-1
+        history[..., K-1, S:] = 0                      (a_t is not chosen yet)
+
+    so the newest row holds the current observation and an all-zero action ("no action yet"). A step
+    shifts the window by one row, writes the action just taken into the former newest row and appends
+    ``(s_{t+1}, 0)``: ``td["next", out_key][..., K-2, :]`` is ``(s_t, a_t)`` and row ``K-1`` is
+    ``(s_{t+1}, 0)``. At reset every row is ``(s_0, 0)``: rows before the episode start repeat the first
+    observation with zero actions. With ``K == 1`` the window never holds an action.
+
+    The window lives only in the tensordict (it is also declared as a state entry, so batched envs send
+    it to their workers), so the transform works inside or around ``SerialEnv``/``ParallelEnv``, with
+    ``env.rollout`` and collectors, and replay samples carry it like any other key. Actions may be
+    categorical (``[...]`` or ``[..., 1]`` integers) or one-hot (``[..., n_actions]``).
+
+    Example:
+        >>> from torchrl.envs import TransformedEnv
+        >>> from pernav.env.torchrl_env import explore_module, make_torchrl_env
+        >>> env = TransformedEnv(make_torchrl_env(config={"n_traffic": 2}, seed=0), HistoryWindow(K=4))
+        >>> td = env.rollout(3, policy=explore_module())
+        >>> td["history"].shape
+        torch.Size([3, 4, 21])
+        >>> bool((td["next", "history"][1, -1, :14] == td["next", "observation"][1]).all())
+        True
+        >>> int(td["next", "history"][1, -2, 14:].argmax()) == int(td["action"][1])
+        True
+    """
+
+    def __init__(self, K: int = 5, state_key: NestedKey = "observation", action_key: NestedKey = "action",
+                 n_actions: int = 7, out_key: NestedKey = "history") -> None:
+        if K < 1:
+            raise ValueError(f"K must be >= 1, got {K}")
+        if n_actions < 1:
+            raise ValueError(f"n_actions must be >= 1, got {n_actions}")
+        super().__init__(in_keys=[state_key], out_keys=[out_key])
+        self.K = int(K)
+        self.state_key = state_key
+        self.action_key = action_key
+        self.n_actions = int(n_actions)
+        self.out_key = out_key
+
+    # ----- window arithmetic --------------------------------------------------------------------
+    def _row(self, state: torch.Tensor) -> torch.Tensor:
+        """``(state, zeros)`` as one float32 row, shape ``[..., 1, S + n_actions]``."""
+        state = state.to(torch.float32)
+        zeros = state.new_zeros(*state.shape[:-1], self.n_actions)
+        return torch.cat([state, zeros], dim=-1).unsqueeze(-2)
+
+    def _one_hot(self, action: torch.Tensor, batch_dims: int) -> torch.Tensor:
+        """``[..., n_actions]`` float one-hot of a categorical (``[...]``/``[..., 1]``) or one-hot action."""
+        extra = tuple(action.shape[batch_dims:])
+        batch = action.shape[:batch_dims]
+        if self.n_actions == 1 and extra in ((), (1,)):
+            return action.new_ones(*batch, 1, dtype=torch.float32)
+        if extra == (self.n_actions,):
+            return action.to(torch.float32)
+        if extra not in ((), (1,)):
+            raise ValueError(f"action {self.action_key!r} of shape {tuple(action.shape)} is neither "
+                             f"categorical nor one-hot over {self.n_actions} actions")
+        index = action.reshape(batch).long()
+        if bool(((index < 0) | (index >= self.n_actions)).any()):
+            raise ValueError(f"action out of range [0, {self.n_actions - 1}]: "
+                             "n_actions does not match the env")
+        return torch.nn.functional.one_hot(index, self.n_actions).to(torch.float32)
+
+    def initial_window(self, state: torch.Tensor) -> torch.Tensor:
+        """The window at reset: ``K`` copies of ``(state, 0)``."""
+        row = self._row(state)
+        return row.expand(*row.shape[:-2], self.K, row.shape[-1]).clone()
+
+    def next_window(self, window: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor,
+                    batch_dims: int | None = None) -> torch.Tensor:
+        """Shift ``window`` by one: record ``action`` in its newest row and append ``(next_state, 0)``."""
+        new_row = self._row(next_state).to(window.device)
+        if self.K == 1:
+            return new_row
+        batch_dims = window.ndim - 2 if batch_dims is None else batch_dims
+        n_state = window.shape[-1] - self.n_actions
+        one_hot = self._one_hot(action, batch_dims).to(window.device).unsqueeze(-2)
+        actions = torch.cat([window[..., 1:-1, n_state:], one_hot], dim=-2)
+        kept = torch.cat([window[..., 1:, :n_state], actions], dim=-1)
+        return torch.cat([kept, new_row], dim=-2)
+
+    # ----- Transform API ------------------------------------------------------------------------
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        # Partial resets of batched envs: TransformedEnv keeps the old window of the envs not reset.
+        state = tensordict_reset.get(self.state_key)
+        tensordict_reset.set(self.out_key, self.initial_window(state))
+        return tensordict_reset
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        window = tensordict.get(self.out_key, None)
+        if window is None:
+            raise KeyError(f"HistoryWindow: {self.out_key!r} is missing from the step input; "
+                           "start from env.reset() of the TransformedEnv")
+        action = tensordict.get(self.action_key)
+        state = next_tensordict.get(self.state_key)
+        window = self.next_window(window, action, state, batch_dims=tensordict.batch_dims)
+        next_tensordict.set(self.out_key, window)
+        return next_tensordict
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Outside an env (e.g. on replay samples) the window is already a key: nothing to compute."""
+        if self.out_key not in tensordict.keys(include_nested=True):
+            raise KeyError(f"HistoryWindow.forward: {self.out_key!r} not in the tensordict; the window is "
+                           "built by the env (TransformedEnv) and carried as a key")
+        return tensordict
+
+    def _spec(self, spec: Composite) -> Unbounded:
+        state_spec = spec[self.state_key]
+        width = state_spec.shape[-1] + self.n_actions
+        return Unbounded(shape=(*spec.shape, self.K, width), dtype=torch.float32, device=state_spec.device)
+
+    def _check_action_spec(self) -> None:
+        parent = self.parent
+        if parent is None:
+            return
+        spec = parent.full_action_spec.get(self.action_key, None)
+        n = getattr(getattr(spec, "space", None), "n", None)
+        if n is not None and int(n) != self.n_actions:
+            raise ValueError(f"HistoryWindow(n_actions={self.n_actions}) but the env has {int(n)} actions")
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        self._check_action_spec()
+        observation_spec[self.out_key] = self._spec(observation_spec)
+        return observation_spec
+
+    def transform_input_spec(self, input_spec: Composite) -> Composite:
+        input_spec = input_spec.clone()
+        state_spec = input_spec.get("full_state_spec", None)
+        if state_spec is None:
+            state_spec = Composite(shape=input_spec.shape, device=input_spec.device)
+        parent = self.parent
+        observation_spec = parent.output_spec["full_observation_spec"] if parent is not None else None
+        if observation_spec is None or self.state_key not in observation_spec.keys(True, True):
+            raise KeyError(f"HistoryWindow: the env has no observation {self.state_key!r}")
+        state_spec[self.out_key] = self._spec(observation_spec)
+        input_spec["full_state_spec"] = state_spec
+        return input_spec
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}(K={self.K}, state_key={self.state_key!r}, "
+                f"action_key={self.action_key!r}, n_actions={self.n_actions}, out_key={self.out_key!r})")
