@@ -53,7 +53,7 @@ def test_towns_have_ten_valid_routes(name):
         if town.has_roundabout:
             assert "enter" in kinds and "exit" in kinds
         # consecutive lanes are connected (or parallel lanes of the same road: a lane change)
-        for a, b in zip(route.lanes, route.lanes[1:]):
+        for a, b in zip(route.lanes, route.lanes[1:], strict=False):
             parallel = [(b[0], b[1], k) for k in range(len(town.network.graph[b[0]][b[1]]))]
             assert any(p in town.successors[a] for p in parallel)
         # waypoints every few metres

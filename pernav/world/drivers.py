@@ -50,10 +50,10 @@ CONTEXT_CHOICES: dict[str, tuple[str, ...]] = {
 class DriverProfile:
     """A driver's personal dynamics (SPEC.md §3). Every field is validated against its range.
 
-    >>> DriverProfile(reaction_time=3.0)
+    >>> DriverProfile(reaction_time=3.0)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    pernav.world.drivers.ProfileError: reaction_time=3.0 is out of range [0.5, 2.5] (s from the end of an instruction's audio to acting on it)
+    pernav.world.drivers.ProfileError: reaction_time=3.0 is out of range [0.5, 2.5] (s from the end of ...)
     """
 
     reaction_time: float = 1.2

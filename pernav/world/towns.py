@@ -449,7 +449,7 @@ def build_town(spec: TownSpec) -> Town:
                 spec.description)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def get_town(name: str) -> Town:
     """The named town with its ten fixed routes (cached: towns are immutable once built)."""
     if name not in TOWN_SPECS:
