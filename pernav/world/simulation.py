@@ -127,10 +127,6 @@ class PathCar:
     path: list[LaneIndex]
     s: float
 
-    def path_lanes(self):
-        town = self.world.town
-        return [town.lane(i) for i in self.path]
-
     def advance_path(self) -> None:
         """Move to the next lane of the path once past the end of the current one."""
         town = self.world.town
@@ -197,6 +193,7 @@ class RightOfWay:
     def __init__(self, town: Town) -> None:
         self.town = town
         self.holders: dict[str, dict[int, str]] = {j: {} for j in town.junctions}
+        self.world_cars: list = []  # the cars of the current frame (set by World.frame)
 
     def release_stale(self, cars: list[Vehicle]) -> None:
         alive = {id(c): c for c in cars}
@@ -232,8 +229,6 @@ class RightOfWay:
             if -7.0 < delta < 16.0:
                 return False
         return True
-
-    world_cars: list = []
 
 
 # --------------------------------------------------------------------------------------------------

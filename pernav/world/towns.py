@@ -275,6 +275,8 @@ class _Builder:
         self.successors: dict[LaneIndex, list[LaneIndex]] = {}
         self.lane_junction: dict[LaneIndex, str] = {}
         self.road_lanes: list[LaneIndex] = []
+        self.cross_ends: dict[str, dict] = {}  # junction -> (out arm, out lane) -> connector ends
+        self.ring_exits: dict[tuple[str, str], LaneIndex] = {}  # (roundabout, arm) -> exit spoke
 
     def add(self, a: str, b: str, lane: AbstractLane, junction: str | None = None) -> LaneIndex:
         self.net.add_lane(a, b, lane)
@@ -365,7 +367,6 @@ def _build_cross(bld: _Builder, j: Junction) -> dict[tuple[str, int], list[LaneI
                     idx = bld.chain(j.id, j.in_node(a), j.out_node(b), f"{a}{b}{k}", pieces)
                 firsts.setdefault((a, k), []).append(idx[0])
                 ends.setdefault((b, kb), []).append((idx[-1], b, kb))
-    bld.cross_ends = getattr(bld, "cross_ends", {})
     bld.cross_ends[j.id] = ends
     return firsts
 
@@ -399,7 +400,6 @@ def _build_roundabout(bld: _Builder, j: Junction) -> dict[tuple[str, int], list[
         bld.link(ring_idx[a][0], ring_idx[a][1])
         bld.link(ring_idx[prev][1], ring_idx[a][0])
     firsts = {}
-    bld.ring_exits = getattr(bld, "ring_exits", {})
     for a in arms:
         th = ANGLE[a]
         entry = bld.add(j.in_node(a), f"{j.id}:r{a}e",
@@ -425,10 +425,10 @@ def build_town(spec: TownSpec) -> Town:
         firsts[j.id] = _build_roundabout(bld, j) if j.kind == "roundabout" else _build_cross(bld, j)
     # connector/exit ends per (junction, out arm, out lane)
     ends: dict[tuple[str, str, int], list[LaneIndex]] = {}
-    for jid, table in getattr(bld, "cross_ends", {}).items():
+    for jid, table in bld.cross_ends.items():
         for (b, kb), lst in table.items():
             ends.setdefault((jid, b, kb), []).extend(idx for idx, _, _ in lst)
-    for (jid, a), idx in getattr(bld, "ring_exits", {}).items():
+    for (jid, a), idx in bld.ring_exits.items():
         ends.setdefault((jid, a, 0), []).append(idx)
     for a, arm, b, n in links:
         ja, jb = junctions[a], junctions[b]
