@@ -61,6 +61,7 @@ class PromptPolicy:
     driver: Driver
     margin: float = 0.8
     prepare_gap: float = 6.0
+    step: float = 1.0  # s between two decisions of the policy (one env step)
 
     def _brake_distance(self, v: float, v_target: float) -> float:
         b = 0.6 * self.driver.comfort_decel
@@ -84,7 +85,7 @@ class PromptPolicy:
         before it (``before``, a ring exit it must pass)."""
         v = max(view.speed, 3.0)
         commit, lead = self.exit_lead(v)
-        if exit_.s - view.progress > lead:
+        if exit_.s - view.progress - v * self.step > lead:  # the next step is still in time
             return False
         if before is None or before.kind == "enter":
             return True
@@ -102,7 +103,7 @@ class PromptPolicy:
         desired = 0
         if m.kind in TURN:
             lead = self.turn_lead(v)
-            if dist <= lead:
+            if dist - v * self.step <= lead:  # at the next step it would be too late
                 desired = TURN[m.kind]
             elif dist <= lead + v * (audio_duration(3) + self.prepare_gap):
                 desired = PREPARE[m.kind]

@@ -375,14 +375,27 @@ class DriverCar(PathCar, Vehicle):
         succ = self.world.town.successors
         while self.distance_along(len(self.path)) < horizon:
             options = succ[self.path[-1]]
-            if len(options) != 1:
+            if len(options) != 1 or self._branches(self.path[-1]) > 1:
                 return
             self.path.append(options[0])
+
+    def _branches(self, lane: LaneIndex) -> int:
+        """Movements the road of ``lane`` offers at its end: on a multi-lane approach to a cross
+        junction each lane may lead elsewhere (left lane: left, right lane: right), so the choice
+        of movement includes the lanes beside the driver's own."""
+        town = self.world.town
+        n = len(town.network.graph[lane[0]][lane[1]])
+        if n == 1 or ":i" not in lane[1]:
+            return len(town.successors[lane])
+        j = town.junction_of_node(lane[1])
+        if j is None or j.kind != "cross":
+            return len(town.successors[lane])
+        return len({nxt for k in range(n) for nxt in town.successors[(lane[0], lane[1], k)]})
 
     def decision_node(self) -> tuple[str, float] | None:
         """The next node where the driver must choose, and the distance to it."""
         last = self.path[-1]
-        if len(self.world.town.successors[last]) > 1:
+        if self._branches(last) > 1:
             return last[1], self.distance_along(len(self.path))
         return None
 
@@ -702,7 +715,10 @@ class World:
                     gap = along - half
             lon = float(np.dot(rel, h))
             lat = abs(float(rel[0] * h[1] - rel[1] * h[0]))
-            if 0 < lon < 35.0 and lat < (car.WIDTH + other.WIDTH) / 2 + 0.4:
+            # the corridor catches crossing and same-way cars; an oncoming car (waiting at the stop
+            # line of the arm a turning car leaves by) is in the other lane, not in the way
+            oncoming = float(np.dot(other.direction, h)) < -0.5
+            if 0 < lon < 35.0 and lat < (car.WIDTH + other.WIDTH) / 2 + 0.4 and not oncoming:
                 gap = min(gap, lon - half)
             if gap < best_gap:
                 best, best_gap = other, gap
@@ -773,13 +789,24 @@ class World:
 
     def _curb(self) -> None:
         ego = self.ego
-        threshold = LANE_WIDTH / 2 - ego.WIDTH / 2 + 0.75
-        off = self.town.lane_grid.distance_to_road(ego.position) > threshold and not self._in_box(ego.position)
+        off = self._over_edge(ego)
         if off and not ego.off_road:
             self.events.edge_strikes += 1
             self.events.log.append(("edge", round(self.time, 1)))
             ego.speed *= 0.6
         ego.off_road = off
+
+    def _over_edge(self, car: PathCar) -> bool:
+        """The car's body is more than 0.75 m over the road edge: a side of the car (its centre
+        line ± (width/2 - 0.75)) lies outside every lane, outside junction boxes. Checking the
+        sides, not the centre, keeps a lane change between two parallel lanes on the road."""
+        grid = self.town.lane_grid
+        inside = LANE_WIDTH / 2 - car.WIDTH / 2 + 0.75  # centre this close to a lane: sides on it
+        if grid.distance_to_road(car.position) <= inside or self._in_box(car.position):
+            return False
+        h = car.heading
+        normal = np.array([-np.sin(h), np.cos(h)]) * (car.WIDTH / 2 - 0.75)
+        return any(grid.distance_to_road(car.position + sign * normal) > LANE_WIDTH / 2 for sign in (1, -1))
 
     def _in_box(self, p: np.ndarray) -> bool:
         for j in self.town.junctions.values():
