@@ -24,6 +24,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from pernav.env.planning import action_mask, explore_plan, plan_goals
 from pernav.env.policies import NavView, PromptPolicy, explore_policy, oracle_policy
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
@@ -52,6 +53,8 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "nominal_speed": 10.0,  # m/s used for a route's nominal time
     "arrival_radius": 8.0,  # m from the destination that counts as arrived
     "reroute_distance": 8.0,  # m off the route before the navigation re-plans
+    "plan_horizon": 5,  # steps of the planning context in info (goals, explore plan, action mask)
+    "plan_shift": 2,  # explore-plan time shifts the planner may match (steps each way)
 }
 
 
@@ -192,6 +195,7 @@ class NavigationEnv(gym.Env):
         self.tracking_cost = 0.0
         self.missed_turns = self.wrong_turns = self.reroutes = 0
         self.completed = False
+        self._explore_past: list[int] = []  # explore instructions of the past steps (planning context)
         self.goal = self.route.goal_waypoint(self.progress, 0.0)
         return self._observation(), self._info(0.0, False)
 
@@ -199,6 +203,7 @@ class NavigationEnv(gym.Env):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
         instruction, playback = self.decode(action)
+        self._explore_past = [*self._explore_past, self._explore(self.nav_view())][-max(self.config["plan_shift"], 1):]
         played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
         if played:
             self.world.ego.hear(instruction, playback, self.world.time)
@@ -227,7 +232,9 @@ class NavigationEnv(gym.Env):
         """Track progress; re-plan from where the car is when it has left the route."""
         ego = self.world.ego
         self.progress, dist = self.route.project(ego.position, hint=self.progress)
-        on_route = ego.path[0][:2] in self.route.roads
+        # on a road of the route near the car's progress (a route may pass the same place twice:
+        # a road of the route far from the projected point is not "on route")
+        on_route = ego.path[0][:2] in self.route.roads and dist < 3 * self.config["reroute_distance"]
         if on_route or dist < self.config["reroute_distance"]:
             return
         # classify against the route's manoeuvre the driver decided differently on
@@ -296,7 +303,21 @@ class NavigationEnv(gym.Env):
             "oracle_action": self.oracle_action(),
         }
         info.update(self.junction_info())
+        info.update(self.planning_info(info["in_roundabout"]))
         return info
+
+    def planning_info(self, in_roundabout: bool) -> dict[str, np.ndarray]:
+        """The planner's context (see :mod:`pernav.env.planning`): goals, explore plan, action mask."""
+        H, S = int(self.config["plan_horizon"]), int(self.config["plan_shift"])
+        view = self.nav_view()
+        speed = float(self.world.ego.speed)
+        plan = explore_plan(self._explore, view, self._explore_past, H, S)
+        playbacks = 3 if self.config["adaptive_speed"] else 1
+        return {
+            "plan_goals": plan_goals(self.route, self.progress, speed, H),
+            "explore_plan": plan,
+            "action_mask": action_mask(self.route, self.progress, speed, in_roundabout, plan, H, S, playbacks),
+        }
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -38,6 +38,7 @@ __all__ = [
     "info_action_module",
     "make_torchrl_env",
     "oracle_module",
+    "planning_arrays",
 ]
 
 #: The numeric ``info`` entries copied into the tensordict (shape ``()`` each) and their dtypes.
@@ -74,17 +75,20 @@ class NavigationInfoReader(BaseInfoDictReader):
     (tensor(0.5000), tensor(False))
     """
 
-    def __init__(self, dtypes: Mapping[str, torch.dtype] | None = None) -> None:
+    def __init__(self, dtypes: Mapping[str, torch.dtype] | None = None,
+                 arrays: Mapping[str, tuple[tuple[int, ...], torch.dtype]] | None = None) -> None:
         self.dtypes = dict(INFO_DTYPES if dtypes is None else dtypes)
+        self.arrays = dict(arrays or {})  # key -> (shape, dtype) of array-valued entries
         specs = {key: Unbounded(shape=(), dtype=dtype) for key, dtype in self.dtypes.items()}
+        specs.update({key: Unbounded(shape=shape, dtype=dtype) for key, (shape, dtype) in self.arrays.items()})
         self._info_spec = Composite(specs, shape=())
 
     def __call__(self, info_dict: dict[str, Any], tensordict: TensorDictBase) -> TensorDictBase:
         device = tensordict.device
-        for key, dtype in self.dtypes.items():
+        for key, dtype in {**self.dtypes, **{k: d for k, (_, d) in self.arrays.items()}}.items():
             if key not in info_dict:
                 raise KeyError(f"NavigationEnv info has no {key!r}; it reports {sorted(info_dict)}")
-            tensordict.set(key, torch.tensor(info_dict[key], dtype=dtype, device=device))
+            tensordict.set(key, torch.as_tensor(info_dict[key], dtype=dtype, device=device))
         return tensordict
 
     @property
@@ -128,11 +132,22 @@ def make_torchrl_env(town: str = "Town1", config: dict[str, Any] | None = None,
     >>> env.reset()["observation"].shape
     torch.Size([2, 14])
     """
-    env = NavigationTorchRLEnv(NavigationEnv(town=town, config=config), reset_options=options, device=device)
-    env.set_info_dict_reader(NavigationInfoReader())
+    nav = NavigationEnv(town=town, config=config)
+    env = NavigationTorchRLEnv(nav, reset_options=options, device=device)
+    env.set_info_dict_reader(NavigationInfoReader(arrays=planning_arrays(nav.config, nav.n_actions)))
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
+    """Shapes and dtypes of the planning context in ``info`` (see :mod:`pernav.env.planning`)."""
+    H, S = int(config["plan_horizon"]), int(config["plan_shift"])
+    return {
+        "plan_goals": ((H, 2), torch.float32),
+        "explore_plan": ((H + 2 * S,), torch.int64),
+        "action_mask": ((H, n_actions), torch.bool),
+    }
 
 
 class _AsAction(nn.Module):

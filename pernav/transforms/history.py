@@ -60,7 +60,7 @@ class HistoryWindow(Transform):
     # ----- window arithmetic --------------------------------------------------------------------
     def _row(self, state: torch.Tensor) -> torch.Tensor:
         """``(state, zeros)`` as one float32 row, shape ``[..., 1, S + n_actions]``."""
-        state = state.to(torch.float32)
+        state = state if state.is_floating_point() else state.to(torch.float32)
         zeros = state.new_zeros(*state.shape[:-1], self.n_actions)
         return torch.cat([state, zeros], dim=-1).unsqueeze(-2)
 
@@ -71,7 +71,7 @@ class HistoryWindow(Transform):
         if self.n_actions == 1 and extra in ((), (1,)):
             return action.new_ones(*batch, 1, dtype=torch.float32)
         if extra == (self.n_actions,):
-            return action.to(torch.float32)
+            return action.to(torch.get_default_dtype() if not action.is_floating_point() else action.dtype)
         if extra not in ((), (1,)):
             raise ValueError(f"action {self.action_key!r} of shape {tuple(action.shape)} is neither "
                              f"categorical nor one-hot over {self.n_actions} actions")

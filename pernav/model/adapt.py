@@ -1,0 +1,70 @@
+"""One-shot adaptation ``U(P, tau)`` (paper Eq. 2): one gradient step of the L-step loss on one trajectory.
+
+Parameters are handled functionally as a :class:`~tensordict.TensorDict` (``TensorDict.from_module``
+layout, buffers included); the adapted parameters are returned as a new TensorDict and swapped into the
+model only where they are used (``with adapted.to_module(model): ...``), never by copying the module.
+With ``first_order=False`` the step is differentiable (``create_graph=True``), so a loss computed with the
+adapted parameters back-propagates to the meta parameters through the adaptation (MAML-style, as FTML
+needs); ``first_order=True`` treats the adaptation gradient as a constant.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from pernav.model.dynamics import DynamicsModel
+    >>> model = DynamicsModel(hidden=(16,))
+    >>> T = 12
+    >>> tau = TensorDict({"history": torch.randn(T, 5, 21), "action": torch.randint(7, (T,)),
+    ...                   "observation": torch.randn(T, 14), ("next", "observation"): torch.randn(T, 14)}, [T])
+    >>> adapted = adapt(model, tau, alpha=0.01)
+    >>> adapted["net", "0", "weight"].shape == model.net[0].weight.shape
+    True
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.losses import multistep_loss
+
+__all__ = ["adapt", "meta_parameters", "trajectory_windows"]
+
+
+def meta_parameters(model: torch.nn.Module) -> TensorDictBase:
+    """The model's parameters and buffers as a TensorDict (the live tensors, so gradients reach them)."""
+    return TensorDict.from_module(model)
+
+
+def trajectory_windows(trajectory: TensorDictBase, L: int) -> TensorDictBase:
+    """All ``[L]`` slices of consecutive transitions of a ``[T]`` trajectory, shape ``[T - L + 1, L]``
+    (a trajectory shorter than ``L`` gives one slice of length ``T``)."""
+    if trajectory.ndim != 1:
+        raise ValueError(f"a trajectory must be a 1-D tensordict, got batch_size {tuple(trajectory.shape)}")
+    T = trajectory.shape[0]
+    if T == 0:
+        raise ValueError("cannot adapt on an empty trajectory")
+    L = min(L, T)
+    index = torch.arange(T - L + 1).unsqueeze(1) + torch.arange(L).unsqueeze(0)
+    return trajectory[index]
+
+
+def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
+          first_order: bool = False, params: TensorDictBase | None = None) -> TensorDictBase:
+    """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over all L-slices of ``tau``.
+
+    ``params`` defaults to the model's own (meta) parameters. Buffers (normalization statistics) are
+    carried over unchanged.
+    """
+    params = meta_parameters(model) if params is None else params
+    keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad]
+    if not keys:
+        raise ValueError("no parameter requires grad: nothing to adapt")
+    windows = trajectory_windows(trajectory, L)
+    with torch.enable_grad():
+        loss = multistep_loss(model, windows, params=params)
+        grads = torch.autograd.grad(loss, [params.get(k) for k in keys], create_graph=not first_order)
+    adapted = params.copy()  # shallow: buffers are shared, parameters replaced below
+    for k, g in zip(keys, grads, strict=True):
+        adapted.set(k, params.get(k) - alpha * g)
+    return adapted

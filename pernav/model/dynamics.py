@@ -1,0 +1,166 @@
+"""The deterministic dynamics model of car-plus-driver (paper §4.2, SPEC.md §4).
+
+Input: the :class:`~pernav.transforms.HistoryWindow` of the last K (state, action) pairs, with the action
+about to be taken written into the newest row. Output: the next state. Internally the window is expressed
+in the egocentric frame of the newest state (positions, velocities and goals relative to the car and
+rotated by its heading), normalized, and an MLP predicts the normalized next-state *difference* in that
+frame, which is then turned back into the next world-frame state. The normalization statistics are buffers
+of the module: saved, loaded and swapped with it.
+
+Example:
+    >>> import torch
+    >>> model = DynamicsModel(n_actions=7, K=5, hidden=(32, 32))
+    >>> history = torch.zeros(4, 5, 14 + 7)
+    >>> model(history, torch.tensor([0, 1, 2, 3])).shape
+    torch.Size([4, 14])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+from torchrl.modules import MLP
+
+from pernav.transforms.history import HistoryWindow
+
+__all__ = ["STATE_DIM", "DynamicsModel", "apply_delta", "ego_delta", "wrap_angle"]
+
+STATE_DIM = 14
+X, Y, VX, VY, HEADING, GX, GY = 0, 1, 3, 4, 6, 9, 10
+PAIRS = ((X, Y), (VX, VY), (GX, GY))  # planar vectors rotated into the car's frame
+
+
+def wrap_angle(a: torch.Tensor) -> torch.Tensor:
+    """Angle in [-pi, pi)."""
+    return torch.remainder(a + torch.pi, 2 * torch.pi) - torch.pi
+
+
+def _rotate(x: torch.Tensor, y: torch.Tensor, angle: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    c, s = torch.cos(angle), torch.sin(angle)
+    return c * x - s * y, s * x + c * y
+
+
+def ego_delta(state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
+    """``next_state - state`` with position, velocity and goal changes rotated into ``state``'s frame.
+
+    >>> s = torch.zeros(14); s[6] = torch.pi / 2           # heading +90°
+    >>> n = s.clone(); n[1] = 2.0                            # moved 2 m along +y (straight ahead)
+    >>> torch.allclose(ego_delta(s, n)[:2], torch.tensor([2.0, 0.0]), atol=1e-6)
+    True
+    """
+    d = next_state - state
+    theta = state[..., HEADING]
+    out = d.clone()
+    for i, j in PAIRS:
+        out[..., i], out[..., j] = _rotate(d[..., i], d[..., j], -theta)
+    out[..., HEADING] = wrap_angle(d[..., HEADING])
+    return out
+
+
+def apply_delta(state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+    """Inverse of :func:`ego_delta`: the next state from ``state`` and an egocentric difference."""
+    theta = state[..., HEADING]
+    d = delta.clone()
+    for i, j in PAIRS:
+        d[..., i], d[..., j] = _rotate(delta[..., i], delta[..., j], theta)
+    return state + d
+
+
+def _safe_std(x: torch.Tensor) -> torch.Tensor:
+    """Per-column std; a column constant in the data (e.g. no roundabout in this town) gets 1, not a tiny
+    value that would blow up when the column varies later."""
+    std = x.std(0) if x.shape[0] > 1 else torch.ones_like(x[0])
+    return torch.where(std < 1e-3, torch.ones_like(std), std)
+
+
+class DynamicsModel(nn.Module):
+    """MLP dynamics ``(history window, action) -> next state`` predicting egocentric differences.
+
+    Args:
+        state_dim: state size (14, the paper's state).
+        n_actions: 7, or 21 with playback speed.
+        K: history length (rows of the window).
+        hidden: hidden layer widths ([256, 256, 256] in the paper).
+
+    The window convention is :class:`~pernav.transforms.HistoryWindow`'s: the newest row holds the current
+    state and a zero action; :meth:`forward` writes ``action`` there. :meth:`next_window` shifts a window
+    by one imagined step, exactly as the transform does in the real env.
+
+    >>> m = DynamicsModel(hidden=(16,))
+    >>> w = torch.randn(3, 5, 21)
+    >>> m.next_window(w, torch.tensor([1, 2, 0]), torch.randn(3, 14)).shape
+    torch.Size([3, 5, 21])
+    """
+
+    def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
+                 hidden: Sequence[int] = (256, 256, 256)) -> None:
+        super().__init__()
+        if state_dim != STATE_DIM:
+            raise ValueError(f"state_dim must be {STATE_DIM} (the paper's state), got {state_dim}")
+        self.state_dim, self.n_actions, self.K = state_dim, int(n_actions), int(K)
+        self.hidden = tuple(int(h) for h in hidden)
+        self.window = HistoryWindow(K=self.K, n_actions=self.n_actions)
+        self.n_features = self.K * (state_dim + 1 + self.n_actions)
+        self.net = MLP(in_features=self.n_features, out_features=state_dim, num_cells=list(self.hidden),
+                       activation_class=nn.ReLU)
+        self.register_buffer("in_mean", torch.zeros(self.n_features))
+        self.register_buffer("in_std", torch.ones(self.n_features))
+        self.register_buffer("out_mean", torch.zeros(state_dim))
+        self.register_buffer("out_std", torch.ones(state_dim))
+
+    # ----- window <-> features -------------------------------------------------------------------
+    def with_action(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The window with ``action`` (categorical ``[...]`` or one-hot) in its newest row."""
+        one_hot = self.window._one_hot(action, history.ndim - 2).to(history.dtype)
+        newest = torch.cat([history[..., -1, : self.state_dim], one_hot], dim=-1).unsqueeze(-2)
+        return torch.cat([history[..., :-1, :], newest], dim=-2)
+
+    def features(self, window: torch.Tensor) -> torch.Tensor:
+        """Flat egocentric features of a window (relative to its newest state), ``[..., n_features]``."""
+        states, actions = window[..., : self.state_dim], window[..., self.state_dim:]
+        now = states[..., -1:, :]
+        theta = now[..., HEADING]
+        rel = states.clone()
+        for i, j in ((X, Y), (GX, GY)):
+            rel[..., i], rel[..., j] = _rotate(states[..., i] - now[..., i], states[..., j] - now[..., j], -theta)
+        rel[..., VX], rel[..., VY] = _rotate(states[..., VX], states[..., VY], -theta)
+        dtheta = states[..., HEADING] - theta
+        rel[..., HEADING] = torch.sin(dtheta)
+        feats = torch.cat([rel, torch.cos(dtheta).unsqueeze(-1), actions], dim=-1)
+        return feats.flatten(-2)
+
+    # ----- prediction ----------------------------------------------------------------------------
+    def normalized_delta(self, window: torch.Tensor) -> torch.Tensor:
+        """The MLP's output: the normalized egocentric next-state difference for a window with action."""
+        return self.net((self.features(window) - self.in_mean) / self.in_std)
+
+    def delta(self, window: torch.Tensor) -> torch.Tensor:
+        return self.normalized_delta(window) * self.out_std + self.out_mean
+
+    def normalize_delta(self, delta: torch.Tensor) -> torch.Tensor:
+        return (delta - self.out_mean) / self.out_std
+
+    def forward(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """Next state ``[..., 14]`` after taking ``action`` with window ``history``."""
+        window = self.with_action(history, action)
+        return apply_delta(history[..., -1, : self.state_dim], self.delta(window))
+
+    def next_window(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
+        """``history`` shifted by one step: ``action`` recorded, ``(next_state, 0)`` appended."""
+        return self.window.next_window(history, action, next_state, batch_dims=history.ndim - 2)
+
+    @torch.no_grad()
+    def fit_normalization(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor) -> None:
+        """Set the input/output statistics from data (``[N, K, D]``, ``[N]``, ``[N, 14]``)."""
+        feats = self.features(self.with_action(history, action))
+        delta = ego_delta(history[..., -1, : self.state_dim], next_state)
+        self.in_mean.copy_(feats.mean(0))
+        self.in_std.copy_(_safe_std(feats))
+        self.out_mean.copy_(delta.mean(0))
+        self.out_std.copy_(_safe_std(delta))
+
+    def config(self) -> dict:
+        """Constructor arguments (saved with checkpoints)."""
+        return {"state_dim": self.state_dim, "n_actions": self.n_actions, "K": self.K, "hidden": list(self.hidden)}

@@ -1,0 +1,77 @@
+"""Model-learning losses: the paper's L-step loss (Eq. 4) and a single-step loss, with optional functional
+parameters (any :class:`~tensordict.TensorDict` of the model's parameters, e.g. adapted ones).
+
+A batch is a tensordict of shape ``[B, L]`` of consecutive transitions of one trajectory each (what
+:class:`~pernav.trainer.buffers.RoundBuffers` samples), with ``"history"``, ``"action"``, ``"observation"``
+and ``("next", "observation")``.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from pernav.model.dynamics import DynamicsModel
+    >>> model = DynamicsModel(hidden=(16,))
+    >>> B, L = 8, 5
+    >>> batch = TensorDict({"history": torch.randn(B, L, 5, 21), "action": torch.randint(7, (B, L)),
+    ...                     "observation": torch.randn(B, L, 14),
+    ...                     ("next", "observation"): torch.randn(B, L, 14)}, [B, L])
+    >>> multistep_loss(model, batch).shape
+    torch.Size([])
+"""
+
+from __future__ import annotations
+
+from contextlib import nullcontext
+
+import torch
+from tensordict import TensorDictBase
+
+from pernav.model.dynamics import DynamicsModel, apply_delta, ego_delta
+
+__all__ = ["multistep_loss", "single_step_loss", "using"]
+
+
+def using(model: torch.nn.Module, params: TensorDictBase | None):
+    """Context in which ``model`` runs with ``params`` (``TensorDict.from_module`` layout) swapped in.
+
+    Gradients flow to ``params``; the module's own parameters are restored on exit.
+    """
+    return nullcontext() if params is None else params.to_module(model)
+
+
+def _rollout_loss(model: DynamicsModel, batch: TensorDictBase) -> torch.Tensor:
+    history = batch["history"][:, 0]
+    actions = batch["action"]
+    states = batch["observation"]
+    next_states = batch["next", "observation"]
+    S = model.state_dim
+    loss = history.new_zeros(())
+    steps = batch.shape[1]
+    for step in range(steps):
+        action = actions[:, step]
+        window = model.with_action(history, action)
+        pred = model.normalized_delta(window)
+        # the true difference, in the frame of the true previous state (Eq. 4: compare differences)
+        target = model.normalize_delta(ego_delta(states[:, step], next_states[:, step]))
+        loss = loss + ((pred - target) ** 2).sum(-1).mean()
+        if step + 1 < steps:
+            current = history[:, -1, :S]
+            predicted = apply_delta(current, pred * model.out_std + model.out_mean)
+            history = model.next_window(history, action, predicted)
+    return loss / steps
+
+
+def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:
+    """The L-step loss (Eq. 4): roll the model forward autoregressively from the true window at the
+    start of each ``[L]`` slice with the true actions, and compare predicted and true state differences
+    (normalized egocentric differences, squared error, averaged over steps and batch)."""
+    if batch.ndim != 2:
+        raise ValueError(f"multistep_loss expects a [B, L] batch, got batch_size {tuple(batch.shape)}")
+    with using(model, params):
+        return _rollout_loss(model, batch)
+
+
+def single_step_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:
+    """One-step prediction loss on every transition of the batch (each from its true window)."""
+    flat = batch.reshape(-1).unsqueeze(1)
+    with using(model, params):
+        return _rollout_loss(model, flat)

@@ -1,0 +1,174 @@
+"""TreeSearchPlanner: exact discrete tree-search MPC over a learned world model (paper §4.2, SPEC.md §4).
+
+The cost of an action sequence ``a_1..a_H`` is
+
+    sum_h || pos(s_hat_{h+1}) - g_{h+1} ||^2  -  bonus * [a matches the explore plan shifted by k, |k| <= S]
+                                               +  penalty * #(turn/roundabout prompts the mask forbids)
+
+where ``s_hat`` is imagined by the world model (:class:`~pernav.model.world_model.ImaginedNavigationEnv`),
+``g`` are the route's goal waypoints and the tracking term is the env's own
+:func:`~pernav.world.cost.tracking_cost`. The search is exhaustive and level by level: the ``N`` nodes of
+level ``h`` are expanded with the actions allowed at that level in one batched model call, so shared
+prefixes are computed once (``sum_h A^h`` model evaluations instead of ``H * A^H`` for a flat enumeration).
+With ``mask=True`` (default) the actions the situation forbids are not expanded at all, which shrinks the
+tree; with ``mask=False`` they are expanded and penalized. ``beam=W`` keeps only the ``W`` cheapest nodes of
+each level (for the 21-action space); a beam as wide as the tree is the exhaustive search.
+
+The planner reads from the tensordict: ``"history"`` (the :class:`~pernav.transforms.HistoryWindow`),
+``"plan_goals"`` ``[H, 2]``, ``"explore_plan"`` ``[H + 2S]`` and ``"action_mask"`` ``[H, A]``, which the
+navigation env provides (:mod:`pernav.env.planning`); it writes ``"action"``. Any batch shape.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from pernav.model import DynamicsModel
+    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,))))
+    >>> planner = TreeSearchPlanner(env, horizon=3, shift=1)
+    >>> td = TensorDict({"observation": torch.zeros(14), "history": torch.zeros(5, 21),
+    ...                  "plan_goals": torch.ones(3, 2), "explore_plan": torch.zeros(5, dtype=torch.long),
+    ...                  "action_mask": torch.ones(3, 7, dtype=torch.bool)}, [])
+    >>> planner(td)["action"].shape
+    torch.Size([])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.modules.planners import MPCPlannerBase
+
+from pernav.model.dynamics import X, Y
+from pernav.model.losses import using
+from pernav.world.cost import tracking_cost
+
+__all__ = ["PlanResult", "TreeSearchPlanner"]
+
+TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)
+
+
+@dataclass
+class PlanResult:
+    """The best sequence of one search, its cost, and how many model evaluations it took."""
+
+    actions: torch.Tensor  # [H] int64
+    cost: float
+    evaluations: int
+
+
+class TreeSearchPlanner(MPCPlannerBase):
+    """Exhaustive (or beam) level-by-level tree search; see the module docstring for the cost.
+
+    Args:
+        env: an :class:`~pernav.model.world_model.ImaginedNavigationEnv` (its world model is the dynamics).
+        horizon: H, the number of imagined steps (5 in the paper).
+        shift: S, the time shifts of the explore plan that earn the bonus (``explore_plan`` has H + 2S entries).
+        bonus: cost reduction for a sequence equal to a shifted explore plan (squared metres).
+        penalty: cost of each turn/roundabout prompt the action mask forbids (only when ``mask=False``).
+        mask: prune forbidden actions from the tree instead of penalizing them.
+        beam: keep only this many cheapest nodes per level (``None``: exhaustive).
+        playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
+    """
+
+    def __init__(self, env, horizon: int = 5, shift: int = 2, bonus: float = 20.0, penalty: float = 1e3,
+                 mask: bool = True, beam: int | None = None, playbacks: int | None = None) -> None:
+        super().__init__(env, action_key="action")
+        if horizon < 1:
+            raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if beam is not None and beam < 1:
+            raise ValueError(f"beam must be >= 1 or None, got {beam}")
+        self.model = env.dynamics
+        self.n_actions = self.model.n_actions
+        self.playbacks = playbacks or (3 if self.n_actions == 21 else 1)
+        self.horizon, self.shift = int(horizon), int(shift)
+        self.bonus, self.penalty, self.mask, self.beam = float(bonus), float(penalty), bool(mask), beam
+        self.params: TensorDictBase | None = None  # adapted parameters to plan with (None: the model's own)
+        self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
+        self.last: list[PlanResult] = []
+
+    # ----- one imagined step for a batch of nodes ---------------------------------------------------
+    def _step(self, observation: torch.Tensor, history: torch.Tensor, action: torch.Tensor):
+        td = TensorDict({"observation": observation, "history": history, "action": action}, [action.shape[0]])
+        out = self.env.step(td)["next"]
+        return out["observation"], out["history"]
+
+    def _allowed(self, mask: torch.Tensor, h: int) -> torch.Tensor:
+        return mask[h].nonzero().squeeze(-1) if self.mask else torch.arange(self.n_actions)
+
+    def _final_cost(self, seqs: torch.Tensor, cost: torch.Tensor, plan: torch.Tensor) -> torch.Tensor:
+        """Add the explore-match bonus to complete sequences ``[N, H]``."""
+        H = seqs.shape[1]
+        shifted = plan.unfold(0, H, 1)  # [2S + 1, H]: the explore plan shifted by -S..S
+        match = (seqs.div(self.playbacks, rounding_mode="floor").unsqueeze(1) == shifted.unsqueeze(0)).all(-1).any(-1)
+        return cost - self.bonus * match.to(cost.dtype)
+
+    def _penalties(self, actions: torch.Tensor, mask: torch.Tensor, h: int) -> torch.Tensor:
+        instruction = actions.div(self.playbacks, rounding_mode="floor")
+        is_prompt = torch.isin(instruction, torch.tensor(TURN_INSTRUCTIONS))
+        return self.penalty * (is_prompt & ~mask[h, actions]).to(torch.float32)
+
+    # ----- searches ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def search(self, observation: torch.Tensor, history: torch.Tensor, goals: torch.Tensor, plan: torch.Tensor,
+               mask: torch.Tensor) -> PlanResult:
+        """Level-by-level search from one root (unbatched tensors)."""
+        H = min(self.horizon, goals.shape[0])
+        obs, hist = observation.unsqueeze(0), history.unsqueeze(0)
+        seqs = torch.zeros(1, 0, dtype=torch.long)
+        cost = torch.zeros(1)
+        evaluations = 0
+        for h in range(H):
+            allowed = self._allowed(mask, h)
+            n, a = seqs.shape[0], allowed.shape[0]
+            parent = torch.arange(n).repeat_interleave(a)
+            actions = allowed.repeat(n)
+            obs, hist = self._step(obs[parent], hist[parent], actions)
+            evaluations += actions.shape[0]
+            cost = cost[parent] + tracking_cost(obs[:, [X, Y]], goals[h])
+            if not self.mask:
+                cost = cost + self._penalties(actions, mask, h)
+            seqs = torch.cat([seqs[parent], actions.unsqueeze(1)], dim=1)
+            if self.beam is not None and seqs.shape[0] > self.beam and h + 1 < H:
+                keep = torch.topk(cost, self.beam, largest=False, sorted=False).indices.sort().values
+                obs, hist, cost, seqs = obs[keep], hist[keep], cost[keep], seqs[keep]
+        total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
+        best = int(torch.argmin(total))
+        return PlanResult(seqs[best], float(total[best]), evaluations)
+
+    @torch.no_grad()
+    def flat_search(self, observation: torch.Tensor, history: torch.Tensor, goals: torch.Tensor,
+                    plan: torch.Tensor, mask: torch.Tensor) -> PlanResult:
+        """Reference: enumerate every sequence of the same tree and roll each out H steps (no sharing)."""
+        H = min(self.horizon, goals.shape[0])
+        sets = [self._allowed(mask, h) for h in range(H)]
+        seqs = torch.cartesian_prod(*sets).reshape(-1, H)
+        N = seqs.shape[0]
+        obs, hist = observation.expand(N, -1), history.expand(N, *history.shape)
+        cost = torch.zeros(N)
+        for h in range(H):
+            obs, hist = self._step(obs, hist, seqs[:, h])
+            cost = cost + tracking_cost(obs[:, [X, Y]], goals[h])
+            if not self.mask:
+                cost = cost + self._penalties(seqs[:, h], mask, h)
+        total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
+        best = int(torch.argmin(total))
+        return PlanResult(seqs[best], float(total[best]), N * H)
+
+    # ----- MPCPlannerBase ---------------------------------------------------------------------------
+    def planning(self, td: TensorDictBase) -> torch.Tensor:
+        missing = [k for k in self.in_keys if k not in td.keys()]
+        if missing:
+            raise KeyError(f"TreeSearchPlanner needs {missing} in the tensordict (the navigation env writes "
+                           "plan_goals/explore_plan/action_mask; wrap it with HistoryWindow for history)")
+        flat = td.reshape(-1)
+        actions, self.last = [], []
+        with using(self.model, self.params):
+            for i in range(flat.shape[0]):
+                row = flat[i]
+                result = self.search(row["observation"].float(), row["history"].float(), row["plan_goals"].float(),
+                                     row["explore_plan"].long(), row["action_mask"].bool())
+                self.last.append(result)
+                actions.append(result.actions[0])
+        return torch.stack(actions).reshape(td.shape)
