@@ -1,0 +1,133 @@
+"""Per-round replay buffers for FTML (SPEC.md §1): one TorchRL ``TensorDictReplayBuffer`` per round.
+
+Each round's buffer stores the round's transitions with ``"round"`` and ``"traj"`` metadata (a globally
+unique trajectory id) and samples contiguous ``[L]`` windows with a ``SliceSampler`` keyed on ``"traj"``,
+so a window never crosses the end of a trajectory. The round's adaptation trajectory ``tau_t`` is kept
+apart (:meth:`RoundBuffers.tau`). Everything saves to and loads from a folder.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> buffers = RoundBuffers(L=5, seed=0)
+    >>> def trajectory(T):
+    ...     return TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
+    ...                        "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T])
+    >>> buffers.add(0, trajectory(30), tau=True)
+    >>> buffers.add(0, trajectory(20))
+    >>> buffers.sample(0, 4).shape
+    torch.Size([4, 5])
+    >>> len(buffers.tau(0))
+    30
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
+
+__all__ = ["KEYS", "RoundBuffers"]
+
+#: The entries of a transition that the model needs (everything else is dropped when stored).
+KEYS = ("observation", "action", "history", ("next", "observation"))
+
+
+class RoundBuffers:
+    """One slice-sampling replay buffer per round, plus each round's adaptation trajectory.
+
+    Args:
+        L: window length of :meth:`sample` (the L of the L-step loss).
+        capacity: transitions per round.
+        seed: seed of the sampling generator (sampling is reproducible given the call sequence).
+    """
+
+    def __init__(self, L: int = 5, capacity: int = 10_000, seed: int = 0) -> None:
+        self.L, self.capacity = int(L), int(capacity)
+        self.buffers: dict[int, TensorDictReplayBuffer] = {}
+        self.taus: dict[int, TensorDictBase] = {}
+        self.n_traj = 0
+        self.generator = torch.Generator().manual_seed(seed)
+
+    def _new_buffer(self) -> TensorDictReplayBuffer:
+        return TensorDictReplayBuffer(storage=LazyTensorStorage(self.capacity),
+                                      sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=False))
+
+    @property
+    def rounds(self) -> list[int]:
+        """Rounds that hold data, in order."""
+        return sorted(self.buffers)
+
+    def add(self, round_: int, trajectory: TensorDictBase, tau: bool = False) -> None:
+        """Store a ``[T]`` trajectory (from a ``HistoryWindow`` env) in round ``round_``'s buffer.
+
+        With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``.
+        """
+        if trajectory.ndim != 1 or trajectory.shape[0] == 0:
+            raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
+        data = trajectory.select(*KEYS).clone()
+        data["action"] = data["action"].long().reshape(data.shape)
+        T = data.shape[0]
+        data.set("round", torch.full((T,), round_, dtype=torch.long))
+        data.set("traj", torch.full((T,), self.n_traj, dtype=torch.long))
+        self.n_traj += 1
+        self.buffers.setdefault(round_, self._new_buffer()).extend(data)
+        if tau:
+            self.taus[round_] = data
+
+    def tau(self, round_: int) -> TensorDictBase:
+        """The adaptation trajectory of a round."""
+        if round_ not in self.taus:
+            raise KeyError(f"round {round_} has no adaptation trajectory; rounds with one: {sorted(self.taus)}")
+        return self.taus[round_]
+
+    def data(self, round_: int) -> TensorDictBase:
+        """All transitions of a round, ``[N]``."""
+        buffer = self.buffers[round_]
+        return buffer.storage[: len(buffer)]
+
+    def sample(self, round_: int, n_windows: int) -> TensorDictBase:
+        """``[n_windows, L]`` contiguous windows of round ``round_`` (never across a trajectory end)."""
+        if round_ not in self.buffers:
+            raise KeyError(f"round {round_} has no data; rounds: {self.rounds}")
+        with torch.random.fork_rng():
+            torch.manual_seed(int(torch.randint(2**62, (), generator=self.generator)))
+            sample = self.buffers[round_].sample(batch_size=n_windows * self.L)
+        return sample.reshape(n_windows, self.L)
+
+    def all_data(self) -> TensorDictBase:
+        """Every transition of every round, concatenated."""
+        return torch.cat([self.data(r) for r in self.rounds])
+
+    def save(self, folder: str | Path) -> None:
+        """Write every round's buffer and tau to ``folder`` (``rb.dumps`` per round, plus a manifest)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        for r in self.rounds:
+            self.buffers[r].dumps(folder / f"round_{r}")
+        for r, tau in self.taus.items():
+            tau.memmap(folder / f"tau_{r}")
+        meta = {"L": self.L, "capacity": self.capacity, "n_traj": self.n_traj, "rounds": self.rounds,
+                "taus": sorted(self.taus), "generator": self.generator.get_state().tolist()}
+        (folder / "manifest.json").write_text(json.dumps(meta))
+
+    @classmethod
+    def load(cls, folder: str | Path) -> RoundBuffers:
+        """Read buffers written by :meth:`save`."""
+        folder = Path(folder)
+        manifest = folder / "manifest.json"
+        if not manifest.is_file():
+            raise FileNotFoundError(f"no replay-buffer manifest in {str(folder)!r}")
+        meta = json.loads(manifest.read_text())
+        out = cls(L=meta["L"], capacity=meta["capacity"])
+        out.n_traj = meta["n_traj"]
+        out.generator.set_state(torch.tensor(meta["generator"], dtype=torch.uint8))
+        for r in meta["rounds"]:
+            buffer = out._new_buffer()
+            buffer.loads(folder / f"round_{r}")
+            out.buffers[int(r)] = buffer
+        for r in meta["taus"]:
+            out.taus[int(r)] = TensorDict.load_memmap(folder / f"tau_{r}").clone()
+        return out
