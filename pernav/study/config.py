@@ -1,0 +1,109 @@
+"""Study configuration and presets (``smoke``, ``default``, ``paper``).
+
+Example:
+    >>> cfg = preset("smoke")
+    >>> cfg.towns, len(cfg.entries_for("Town1")) >= 3
+    (['Town1'], True)
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from pernav.study.schedule import Entry, paper_schedule
+from pernav.trainer.ftml import TrainConfig
+from pernav.world.towns import TOWN_NAMES
+
+__all__ = ["METHODS", "PRESETS", "PresetError", "StudyConfig", "preset"]
+
+METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "oracle")
+LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
+
+
+class PresetError(ValueError):
+    """Unknown preset or invalid study option."""
+
+
+@dataclass
+class StudyConfig:
+    """Everything that determines a study's results (saved in results.json as ``config``)."""
+
+    preset: str
+    towns: list[str]
+    schedule: list[Entry]
+    routes: int = 10  # evaluation routes per round (the town's first ``routes``)
+    rollouts: int = 4  # K trajectories per online round and learner (MPC w.p. 1/2, else explore)
+    offline_trajectories: int = 4  # explore trajectories per offline round
+    n_traffic: int = 8
+    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    train: TrainConfig = field(default_factory=TrainConfig)
+    planner: dict[str, Any] = field(default_factory=lambda: {"horizon": 5, "shift": 2, "bonus": 20.0,
+                                                             "beam_speed": 64})
+    seed: int = 0
+
+    def entries_for(self, town: str) -> list[Entry]:
+        return [e for e in self.schedule if e.runs_in(town)]
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["schedule"] = [e.to_dict() for e in self.schedule]
+        out["train"] = self.train.to_dict()
+        return out
+
+    def validate(self) -> None:
+        bad = [t for t in self.towns if t not in TOWN_NAMES]
+        if bad:
+            raise PresetError(f"unknown town {bad[0]!r}; choose from {', '.join(TOWN_NAMES)}")
+        if not self.towns:
+            raise PresetError("no towns to run")
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown:
+            raise PresetError(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
+        if not 1 <= self.routes <= 10:
+            raise PresetError(f"routes must be in [1, 10], got {self.routes}")
+        if self.rollouts < 0 or self.offline_trajectories < 1:
+            raise PresetError("rollouts must be >= 0 and offline_trajectories >= 1")
+        for town in self.towns:
+            phases = [e.phase for e in self.entries_for(town)]
+            if "offline" not in phases or "online" not in phases:
+                raise PresetError(f"town {town}: the schedule gives it no offline or no online entry")
+
+
+def _select(labels: list[str]) -> list[Entry]:
+    by_label = {e.label: e for e in paper_schedule()}
+    return [by_label[x] for x in labels]
+
+
+def _smoke() -> StudyConfig:
+    return StudyConfig(
+        preset="smoke", towns=["Town1"], schedule=_select(["Offline 0", "Online 0", "Online 8"]),
+        routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
+        train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2),
+        planner={"horizon": 5, "shift": 2, "bonus": 20.0, "beam_speed": 32})
+
+
+def _default() -> StudyConfig:
+    # Two towns (Town3 has a roundabout); six online rounds: a vehicle change (cybertruck), fog, and three
+    # other users; ~10 minutes on a 2-core laptop with 2 workers.
+    labels = ["Offline 0", "Offline 1", "Offline 2", "Online 0", "Online 2", "Online 5", "Online 8",
+              "Online 9", "Online 11"]
+    return StudyConfig(
+        preset="default", towns=["Town1", "Town3"], schedule=_select(labels),
+        routes=3, rollouts=2, offline_trajectories=3, n_traffic=4,
+        train=TrainConfig(updates=50, batch=128, warm_updates=300, rounds_per_update=2))
+
+
+def _paper() -> StudyConfig:
+    return StudyConfig(preset="paper", towns=list(TOWN_NAMES), schedule=paper_schedule(), routes=10, rollouts=4,
+                       offline_trajectories=4, n_traffic=8)
+
+
+PRESETS = {"smoke": _smoke, "default": _default, "paper": _paper}
+
+
+def preset(name: str) -> StudyConfig:
+    """A fresh copy of a preset's configuration."""
+    if name not in PRESETS:
+        raise PresetError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    return PRESETS[name]()

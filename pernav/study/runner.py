@@ -1,0 +1,304 @@
+"""Algorithm 1 per town, with every method, checkpoints and resume (SPEC.md §4–§5).
+
+Per town: the offline entries are driven by the explore policy into every learner's data stream; the
+learners (``sysid``, ``adapt``: 7 actions, ``adapt_speed``: 21) are warm-started by maximum likelihood
+(Eq. 1). Then, per online entry ``t``: one explore trajectory ``tau_t``; adapt ``U(P_t, tau_t)``; evaluate
+every method on the evaluation routes with that round's user (same episode seeds for every method);
+``rollouts`` trajectories per learner, each by its MPC policy with probability 1/2 and by explore otherwise,
+into the learner's own ``D_t``; then FTML meta updates (``adapt``, ``adapt_speed``) or plain updates on all
+aggregated data (``sysid``). After the last round, ``hindsight`` is trained with Eq. 3 on all of adapt's
+rounds from the same warm start and evaluated per round like ``adapt``.
+
+A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically
+(a new folder, then a manifest with checksums replaced in one ``os.replace``).
+
+Every random choice is derived from (seed, town, entry, purpose), and torch runs on one thread in a town
+job, so a town's results do not depend on which process or worker runs it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import random
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+from tqdm.auto import tqdm
+
+from pernav.env.torchrl_env import explore_module, oracle_module
+from pernav.model.adapt import adapt
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.planner.tree_search import TreeSearchPlanner
+from pernav.study.config import LEARNERS, StudyConfig
+from pernav.study.schedule import Entry
+from pernav.trainer.buffers import RoundBuffers
+from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
+from pernav.trainer.ftml import FTMLTrainer
+
+__all__ = ["CheckpointError", "run_town"]
+
+log = logging.getLogger("pernav.study")
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, partial or corrupted (the message names the file)."""
+
+
+# ----- policies ---------------------------------------------------------------------------------------
+class Learner:
+    """One learning method: its model, data stream, trainer and MPC planner."""
+
+    def __init__(self, name: str, cfg: StudyConfig, town: str) -> None:
+        self.name = name
+        self.n_actions = LEARNERS.get(name, 7)
+        torch.manual_seed(derive_seed(cfg.seed, town, "init", 21 if self.n_actions == 21 else 7))
+        self.model = DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden)
+        self.buffers = RoundBuffers(L=cfg.train.L, seed=derive_seed(cfg.seed, town, name, "buffers"))
+        self.trainer = FTMLTrainer(self.model, self.buffers, cfg.train, seed=derive_seed(cfg.seed, town, name))
+        p = cfg.planner
+        beam = p.get("beam_speed") if self.n_actions == 21 else None
+        self.planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(self.model)), horizon=p["horizon"],
+                                         shift=p["shift"], bonus=p["bonus"], beam=beam)
+        self.meta = name != "sysid"
+
+    def policy(self, params: Any) -> TreeSearchPlanner:
+        self.planner.params = params
+        return self.planner
+
+    def adapted(self, tau: Any, cfg: StudyConfig) -> Any:
+        if not self.meta:
+            return None
+        with torch.enable_grad():
+            params = adapt(self.model, tau, alpha=cfg.train.alpha, L=cfg.train.L, first_order=True)
+        return params.detach()
+
+    def add(self, round_: int, trajectory: Any, tau: bool = False) -> None:
+        data = to_speed_actions(trajectory) if self.n_actions == 21 else trajectory
+        self.buffers.add(round_, data, tau=tau)
+
+    def state(self) -> dict[str, Any]:
+        return self.trainer.state_dict()
+
+
+def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7):
+    config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21,
+              "plan_horizon": cfg.planner["horizon"], "plan_shift": cfg.planner["shift"]}
+    options = {"route": route, "user": entry.profile(), "context": entry.context()}
+    return history_env(town, options, config=config, seed=seed, K=cfg.train.K)
+
+
+def _episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7):
+    return drive(_env(cfg, town, entry, route, seed, n_actions), policy)
+
+
+def _summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    n = len(episodes)
+    return {
+        "tracking_cost": sum(e["tracking_cost"] for e in episodes) / n,
+        "collisions": sum(e["collisions"] for e in episodes),
+        "vehicle_collisions": sum(e["vehicle_collisions"] for e in episodes),
+        "edge_strikes": sum(e["edge_strikes"] for e in episodes),
+        "completion": sum(e["completed"] for e in episodes) / n,
+        "episodes": episodes,
+    }
+
+
+# ----- checkpoints ------------------------------------------------------------------------------------
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: dict[str, Learner]) -> None:
+    """Write ``folder/entry_{index}`` then atomically point ``folder/manifest.json`` at it."""
+    folder.mkdir(parents=True, exist_ok=True)
+    final = folder / f"entry_{index:03d}"
+    tmp = folder / f".tmp_entry_{index:03d}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir()
+    torch.save({"state": state, "learners": {k: v.state() for k, v in learners.items()}}, tmp / "state.pt")
+    for name, learner in learners.items():
+        learner.buffers.save(tmp / f"buffers_{name}")
+    files = {str(p.relative_to(tmp)): _sha256(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
+    shutil.rmtree(final, ignore_errors=True)
+    os.replace(tmp, final)
+    manifest = {"index": index, "folder": final.name, "files": files}
+    tmp_manifest = folder / ".manifest.json.tmp"
+    tmp_manifest.write_text(json.dumps(manifest))
+    os.replace(tmp_manifest, folder / "manifest.json")
+    for old in folder.glob("entry_*"):  # keep only the checkpoint the manifest points at
+        if old.name != final.name:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any] | None:
+    """Restore learners from the manifest's checkpoint; ``None`` when there is none. Verifies checksums."""
+    manifest_path = folder / "manifest.json"
+    if not manifest_path.exists():
+        return None
+    try:
+        manifest = json.loads(manifest_path.read_text())
+        ckpt = folder / manifest["folder"]
+        files = manifest["files"]
+    except (json.JSONDecodeError, KeyError, TypeError) as exc:
+        raise CheckpointError(f"checkpoint manifest {str(manifest_path)!r} is corrupted ({exc})") from None
+    for rel, digest in files.items():
+        path = ckpt / rel
+        if not path.is_file():
+            raise CheckpointError(f"checkpoint file {str(path)!r} is missing")
+        if _sha256(path) != digest:
+            raise CheckpointError(f"checkpoint file {str(path)!r} is corrupted (checksum mismatch)")
+    data = torch.load(ckpt / "state.pt", weights_only=False)
+    for name, learner in learners.items():
+        learner.trainer.load_state_dict(data["learners"][name])
+        loaded = RoundBuffers.load(ckpt / f"buffers_{name}")
+        learner.buffers.__dict__.update(loaded.__dict__)
+    return data["state"]
+
+
+# ----- the town job -----------------------------------------------------------------------------------
+def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False, position: int = 0) -> dict[str, Any]:
+    """Run Algorithm 1 for every method in ``town``; returns the town's per-entry results."""
+    torch.set_num_threads(1)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
+    out = Path(out)
+    ckpt_dir = out / "checkpoints" / town
+    entries = cfg.entries_for(town)
+    methods = cfg.methods
+    names = [m for m in LEARNERS if m in methods or (m == "adapt" and "hindsight" in methods)]
+    learners = {name: Learner(name, cfg, town) for name in names}
+    state = load_checkpoint(ckpt_dir, learners) if resume else None
+    if state is None:
+        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "timing": {}}
+    routes = list(range(cfg.routes))
+    from torchrl.record.loggers import CSVLogger
+
+    logger = CSVLogger(exp_name=town, log_dir=str(out / "logs"))
+    bar = tqdm(total=len(entries), initial=state["next"], desc=f"{town} rounds", position=position, leave=False)
+    first_online = next(i for i, e in enumerate(entries) if e.phase == "online")
+    for index in range(state["next"], len(entries)):
+        entry = entries[index]
+        t0 = time.perf_counter()
+        rng = random.Random(derive_seed(cfg.seed, town, entry.label))
+        record: dict[str, Any] = {"label": entry.label, "phase": entry.phase, "methods": {}}
+        if entry.phase == "offline":
+            episodes = []
+            for k in range(cfg.offline_trajectories):
+                route = rng.randrange(10)
+                traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
+                                explore_module())
+                episodes.append({"route": route, **episode_metrics(traj)})
+                for learner in learners.values():
+                    learner.add(index, traj, tau=(k == 0))
+            record["methods"]["explore"] = _summarize(episodes)
+            if index + 1 == first_online:
+                _warm_start(cfg, learners)
+                state["warm"] = {k: v.state() for k, v in learners.items()}
+        else:
+            tau_route = rng.randrange(10)
+            tau = _episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
+                           explore_module())
+            for learner in learners.values():
+                learner.add(index, tau, tau=True)
+            adapted = {name: learner.adapted(learner.buffers.tau(index), cfg) for name, learner in learners.items()}
+            policies: dict[str, tuple[Any, int]] = {"explore": (explore_module(), 7), "oracle": (oracle_module(), 7)}
+            for name, learner in learners.items():
+                policies[name] = (learner.policy(adapted[name]), learner.n_actions)
+            for method in methods:
+                if method == "hindsight":
+                    continue
+                policy, n_actions = policies[method]
+                if method in learners:
+                    learners[method].planner.params = adapted[method]
+                episodes = []
+                for route in tqdm(routes, desc=f"{town} {entry.label} {method}", position=position, leave=False,
+                                  disable=len(routes) < 3):
+                    traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
+                                    policy, n_actions)
+                    episodes.append({"route": route, **episode_metrics(traj)})
+                record["methods"][method] = _summarize(episodes)
+            # data collection: K rollouts per learner, MPC w.p. 1/2 else explore, into the learner's own D_t
+            for name, learner in learners.items():
+                learner.planner.params = adapted[name]
+                for k in range(cfg.rollouts):
+                    use_mpc = rng.random() < 0.5
+                    route = rng.randrange(10)
+                    policy = learner.planner if use_mpc else explore_module()
+                    traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
+                                    policy, learner.n_actions)
+                    learner.buffers.add(index, traj)  # already in the learner's action space
+            # the online loss of adapt before the update (for the model-loss regret)
+            if "adapt" in learners:
+                state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=True)
+            for learner in learners.values():
+                learner.trainer.train(cfg.train.updates, meta=learner.meta)
+        state["timing"][entry.label] = round(time.perf_counter() - t0, 2)
+        state["results"].append(record)
+        _log(logger, index, record)
+        state["next"] = index + 1
+        save_checkpoint(ckpt_dir, index, state, learners)
+        bar.update(1)
+    bar.close()
+    if "hindsight" in methods and "hindsight" not in state:
+        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, position)
+        save_checkpoint(ckpt_dir, len(entries), state, learners)
+    _merge_hindsight(state)
+    return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
+            "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"]}
+
+
+def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
+    """Eq. 1 on the offline data. sysid and adapt share data, actions and seed: train once, copy."""
+    done: dict[int, Learner] = {}
+    for learner in learners.values():
+        if learner.n_actions in done:
+            learner.trainer.load_state_dict(done[learner.n_actions].trainer.state_dict())
+            continue
+        learner.trainer.fit_normalization()
+        learner.trainer.train(cfg.train.warm_updates, meta=False)
+        done[learner.n_actions] = learner
+
+
+def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner: Learner, state: dict[str, Any],
+               routes: list[int], position: int) -> dict[str, Any]:
+    """The best meta model in hindsight: Eq. 3 over all of adapt's rounds from the same warm start."""
+    hind = Learner("adapt", cfg, town)
+    hind.trainer.load_state_dict(state["warm"]["adapt"])
+    hind.buffers = adapt_learner.buffers
+    hind.trainer.buffers = adapt_learner.buffers
+    online = [(i, e) for i, e in enumerate(entries) if e.phase == "online"]
+    hind.trainer.train(cfg.train.updates * len(online), meta=True)
+    out: dict[str, Any] = {"evaluations": {}, "losses": {}}
+    for index, entry in tqdm(online, desc=f"{town} hindsight", position=position, leave=False):
+        params = hind.adapted(hind.buffers.tau(index), cfg)
+        policy = hind.policy(params)
+        episodes = []
+        for route in routes:
+            traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route), policy)
+            episodes.append({"route": route, **episode_metrics(traj)})
+        out["evaluations"][entry.label] = _summarize(episodes)
+        out["losses"][entry.label] = hind.trainer.round_loss(index, adapted=True)
+    return out
+
+
+def _merge_hindsight(state: dict[str, Any]) -> None:
+    evaluations = state.get("hindsight", {}).get("evaluations", {})
+    for record in state["results"]:
+        if record["label"] in evaluations:
+            record["methods"]["hindsight"] = evaluations[record["label"]]
+
+
+def _log(logger: Any, step: int, record: dict[str, Any]) -> None:
+    for method, figures in record["methods"].items():
+        logger.log_scalar(f"{method}/tracking_cost", figures["tracking_cost"], step=step)
+        logger.log_scalar(f"{method}/collisions", figures["collisions"], step=step)

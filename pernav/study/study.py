@@ -1,0 +1,149 @@
+"""The online study: towns in parallel, results.json (SPEC.md §7), report and figures.
+
+Example (the smoke preset, ~1 minute):
+    >>> from pernav.study import preset, run_study
+    >>> results = run_study(preset("smoke"), "/tmp/pernav-smoke")      # doctest: +SKIP
+    >>> sorted(results)                                                 # doctest: +SKIP
+    ['config', 'iterations', 'regret', 'summary', 'timing']
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import statistics
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+from pernav.study.config import METHODS, StudyConfig
+from pernav.study.runner import run_town
+
+__all__ = ["OutputError", "check_output", "run_study", "summarize"]
+
+TIMING_KEYS = ("timing",)
+
+
+class OutputError(ValueError):
+    """The output folder cannot be used (it holds a different study, or a study without --resume)."""
+
+
+def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
+    return json.loads(json.dumps(cfg.to_dict()))
+
+
+def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
+    """Refuse to overwrite: a folder with a study in it needs ``--resume`` and the same configuration."""
+    marker = out / "study.json"
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output {str(out)!r} exists and is not a folder")
+    if marker.exists():
+        if not resume:
+            raise OutputError(f"output folder {str(out)!r} already holds a study; pass --resume to continue it "
+                              "or choose another --out")
+        try:
+            saved = json.loads(marker.read_text())
+        except json.JSONDecodeError:
+            raise OutputError(f"{str(marker)!r} is corrupted; cannot tell which study this folder holds") from None
+        if saved != _fingerprint(cfg):
+            diff = next((k for k in saved if saved.get(k) != _fingerprint(cfg).get(k)), "config")
+            raise OutputError(f"output folder {str(out)!r} holds a different study (its {diff!r} differs); "
+                              "choose another --out")
+    elif out.exists() and any(out.iterdir()):
+        raise OutputError(f"output folder {str(out)!r} is not empty and holds no pernav study; choose another --out")
+
+
+def _town_job(args: tuple[StudyConfig, str, str, bool, int]) -> dict[str, Any]:
+    cfg, town, out, resume, position = args
+    return run_town(cfg, town, out, resume=resume, position=position)
+
+
+def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: int = 1,
+              report: bool = True) -> dict[str, Any]:
+    """Run every town (in ``workers`` processes), then write results.json, report.md and figures/."""
+    cfg.validate()
+    out = Path(out)
+    check_output(cfg, out, resume)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "study.json").write_text(json.dumps(_fingerprint(cfg), indent=1))
+    t0 = time.perf_counter()
+    jobs = [(cfg, town, str(out), resume, i) for i, town in enumerate(cfg.towns)]
+    if workers > 1 and len(jobs) > 1:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+            towns = list(pool.map(_town_job, jobs))
+    else:
+        towns = [_town_job(job) for job in jobs]
+    results = assemble(cfg, towns)
+    results["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers,
+                         "towns": {t["town"]: t["timing"] for t in towns}}
+    tmp = out / ".results.json.tmp"
+    tmp.write_text(json.dumps(results, indent=1))
+    os.replace(tmp, out / "results.json")
+    if report:
+        from pernav.study.report import write_report
+
+        write_report(results, out)
+    return results
+
+
+def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
+    """results.json: config, iterations (entry -> town -> method -> figures), summary, regret."""
+    by_town = {t["town"]: {r["label"]: r for r in t["results"]} for t in towns}
+    iterations = []
+    for entry in cfg.schedule:
+        item = {"label": entry.label, "phase": entry.phase, "user": entry.user(), "towns": {}}
+        for town, records in by_town.items():
+            if entry.label in records:
+                item["towns"][town] = records[entry.label]["methods"]
+        iterations.append(item)
+    regret = {}
+    for t in towns:
+        online = t["online_losses"]
+        hind = t["hindsight_losses"]
+        costs = []
+        for r in t["results"]:
+            m = r["methods"]
+            if r["phase"] == "online" and "adapt" in m and "hindsight" in m:
+                costs.append(m["adapt"]["tracking_cost"] - m["hindsight"]["tracking_cost"])
+        losses = [online[k] - hind[k] for k in online if k in hind]
+        regret[t["town"]] = {
+            "labels": [k for k in online if k in hind],
+            "loss_regret": losses,  # l_t(U(P_t, tau_t)) - l_t(U(P_hindsight, tau_t)) on D_t
+            "average_loss_regret": _running_mean(losses),
+            "cost_regret": costs,  # adapt - hindsight episodic cost per round
+            "average_cost_regret": _running_mean(costs),
+        }
+    return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret}
+
+
+def _running_mean(values: list[float]) -> list[float]:
+    out, total = [], 0.0
+    for i, v in enumerate(values, 1):
+        total += v
+        out.append(total / i)
+    return out
+
+
+def summarize(iterations: list[dict[str, Any]]) -> dict[str, Any]:
+    """town -> method -> means (and collision std) over the online rounds."""
+    summary: dict[str, dict[str, Any]] = {}
+    towns = sorted({t for it in iterations for t in it["towns"]})
+    for town in towns:
+        rounds = [it["towns"][town] for it in iterations if it["phase"] == "online" and town in it["towns"]]
+        summary[town] = {}
+        for method in METHODS:
+            rows = [r[method] for r in rounds if method in r]
+            if not rows:
+                continue
+            coll = [r["collisions"] for r in rows]
+            summary[town][method] = {
+                "tracking_cost_mean": statistics.fmean(r["tracking_cost"] for r in rows),
+                "collisions_mean": statistics.fmean(coll),
+                "collisions_std": statistics.pstdev(coll),
+                "completion_mean": statistics.fmean(r["completion"] for r in rows),
+                "rounds": len(rows),
+            }
+    return summary

@@ -1,0 +1,163 @@
+"""Follow-The-Meta-Leader (paper Eq. 3) and the plain maximum-likelihood updates (Eq. 1, SysID).
+
+``meta_update``: sample up to ``rounds_per_update`` rounds that have an adaptation trajectory, adapt the
+meta parameters on each round's ``tau_n`` with ``U`` (second order unless ``first_order``), take the L-step
+loss of the adapted parameters on windows of that round's data, and step the meta parameters on the mean
+(so, over updates, FTML minimizes ``sum_{n <= t} loss(U(P, tau_n), D_n)``). ``plain_update``: the L-step
+loss of the parameters themselves on windows from all rounds (the warm start of Eq. 1 and SysID).
+
+A non-finite loss (or gradient) is never applied: the update is skipped, counted in ``skipped`` and the
+parameters stay the last good ones.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from pernav.model import DynamicsModel
+    >>> from pernav.trainer.buffers import RoundBuffers
+    >>> buffers = RoundBuffers(L=3, seed=0)
+    >>> for r in (0, 1):
+    ...     T = 20
+    ...     buffers.add(r, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
+    ...         "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]), tau=True)
+    >>> trainer = FTMLTrainer(DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3), seed=0)
+    >>> trainer.fit_normalization()
+    >>> loss = trainer.meta_update()
+    >>> bool(torch.isfinite(torch.tensor(loss)))
+    True
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import torch
+
+from pernav.model.adapt import adapt
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.losses import multistep_loss
+from pernav.trainer.buffers import RoundBuffers
+
+__all__ = ["FTMLTrainer", "TrainConfig"]
+
+log = logging.getLogger("pernav.trainer")
+
+
+@dataclass
+class TrainConfig:
+    """Model-learning hyperparameters (SPEC.md §4 defaults)."""
+
+    lr: float = 1e-3
+    updates: int = 50  # model updates per round
+    batch: int = 128  # L-windows per update
+    L: int = 5
+    alpha: float = 0.01  # adaptation rate of U
+    first_order: bool = False
+    rounds_per_update: int = 4  # rounds sampled per meta update (the batch is split among them)
+    warm_updates: int = 300  # plain updates of the offline warm start (Eq. 1)
+    hidden: list[int] = field(default_factory=lambda: [256, 256, 256])
+    K: int = 5
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class FTMLTrainer:
+    """Owns one model, its Adam optimizer and its data stream (``RoundBuffers``)."""
+
+    def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0) -> None:
+        self.model, self.buffers, self.config = model, buffers, config
+        self.optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.skipped = 0
+        self.losses: list[float] = []
+
+    # ----- data ---------------------------------------------------------------------------------
+    def fit_normalization(self) -> None:
+        """Set the model's input/output statistics from all data so far (done once, at warm start)."""
+        data = self.buffers.all_data()
+        self.model.fit_normalization(data["history"], data["action"], data["next", "observation"])
+
+    def _split(self, rounds: list[int]) -> list[tuple[int, int]]:
+        """(round, windows) pairs: up to ``rounds_per_update`` rounds drawn without replacement."""
+        pick = torch.randperm(len(rounds), generator=self.generator)[: self.config.rounds_per_update]
+        chosen = [rounds[int(i)] for i in pick]
+        base, extra = divmod(self.config.batch, len(chosen))
+        return [(r, base + (i < extra)) for i, r in enumerate(chosen)]
+
+    # ----- updates --------------------------------------------------------------------------------
+    def _apply(self, loss: torch.Tensor) -> float:
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            self.skipped += 1
+            log.warning("non-finite model loss (%s): update skipped, parameters kept", value)
+            return value
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
+        if not all(torch.isfinite(g).all() for g in grads):
+            self.skipped += 1
+            self.optimizer.zero_grad(set_to_none=True)
+            log.warning("non-finite gradient: update skipped, parameters kept")
+            return float("nan")
+        self.optimizer.step()
+        self.losses.append(value)
+        return value
+
+    def meta_update(self) -> float:
+        """One FTML step over sampled rounds (each adapted on its own tau)."""
+        rounds = sorted(self.buffers.taus)
+        if not rounds:
+            raise ValueError("meta_update needs rounds with an adaptation trajectory")
+        total = 0.0
+        parts = self._split(rounds)
+        for r, n in parts:
+            adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
+                            first_order=self.config.first_order)
+            total = total + multistep_loss(self.model, self.buffers.sample(r, n), params=adapted) * (n / self.config.batch)
+        return self._apply(total)
+
+    def plain_update(self) -> float:
+        """One maximum-likelihood step on windows from all rounds (no adaptation)."""
+        rounds = self.buffers.rounds
+        if not rounds:
+            raise ValueError("plain_update needs data")
+        sizes = torch.tensor([len(self.buffers.buffers[r]) for r in rounds], dtype=torch.float)
+        draws = torch.multinomial(sizes, self.config.batch, replacement=True, generator=self.generator)
+        total = 0.0
+        for i, r in enumerate(rounds):
+            n = int((draws == i).sum())
+            if n:
+                total = total + multistep_loss(self.model, self.buffers.sample(r, n)) * (n / self.config.batch)
+        return self._apply(total)
+
+    def train(self, updates: int, meta: bool) -> list[float]:
+        """``updates`` meta (FTML) or plain steps; their losses."""
+        step = self.meta_update if meta else self.plain_update
+        return [step() for _ in range(updates)]
+
+    # ----- evaluation -----------------------------------------------------------------------------
+    @torch.no_grad()
+    def round_loss(self, round_: int, adapted: bool, windows: int = 256) -> float:
+        """L-step loss on a round's data, with or without adapting on its tau first (for regret curves)."""
+        params = None
+        if adapted:
+            with torch.enable_grad():
+                params = adapt(self.model, self.buffers.tau(round_), alpha=self.config.alpha, L=self.config.L,
+                               first_order=True)
+            params = params.detach()
+        return float(multistep_loss(self.model, self.buffers.sample(round_, windows), params=params))
+
+    # ----- checkpoints ----------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {"model": self.model.state_dict(), "model_config": self.model.config(),
+                "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
+                "skipped": self.skipped}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.generator.set_state(state["generator"])
+        self.skipped = int(state["skipped"])
