@@ -9,10 +9,10 @@ Example:
     >>> entries = paper_schedule()
     >>> len(entries), entries[0].label, entries[3].phase
     (18, 'Offline 0', 'online')
-    >>> parse_schedule([{"label": "x", "phase": "online", "driver": "user9"}])
+    >>> parse_schedule([{"label": "x", "phase": "online", "driver": "user9"}])  # doctest: +ELLIPSIS
     Traceback (most recent call last):
     ...
-    pernav.study.schedule.ScheduleError: schedule entry 0 ('x'): field 'driver': unknown user 'user9'; choose one of user1, user2, user3, user4, user5, user6, user7 or a mapping of profile fields
+    pernav.study.schedule.ScheduleError: schedule entry 0 ('x'): field 'driver': unknown user 'user9'; ...
 """
 
 from __future__ import annotations
