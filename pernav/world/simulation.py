@@ -304,6 +304,10 @@ class TrafficCar(PathCar, IDMVehicle):
 class DriverCar(PathCar, Vehicle):
     """The navigated car, driven by a simulated driver who knows only what it has heard."""
 
+    SWERVE_REACH = 0.35  # a late turn is still tried this fraction of the way through a junction box
+    SKID_RATIO = 1.5  # lateral acceleration asked / grip beyond which a swerving car slides
+    SKID_TIME = 0.3  # s of sliding that carries the car over the kerb
+
     def __init__(self, world: World, driver: Driver, lane: LaneIndex, s: float) -> None:
         town = world.town
         ln = town.lane(lane)
@@ -320,6 +324,8 @@ class DriverCar(PathCar, Vehicle):
         self.heard: list[Heard] = []
         self.committed: set[str] = set()  # decision nodes already decided
         self.swerving_until = -1.0
+        self.skid_time = 0.0  # s the tyres have been saturated during the current swerve
+        self.ran_wide = False  # a swerve slid the car wide over the kerb (counted once per swerve)
         self.off_road = False
         self.in_contact: set[int] = set()
         self.last_choice: dict[str, str] = {}  # decision node -> movement taken
@@ -493,7 +499,10 @@ class DriverCar(PathCar, Vehicle):
                 if turn.direction in self._options_at(1, approach):
                     self.recommit(approach, 1, now)
         elif turn is not None and self.path[0][0] in self.committed and ":i" in self.path[0][0] \
-                and self.s < 5.0 and self.last_choice.get(self.path[0][0]) == "straight":
+                and self.s < self.SWERVE_REACH * town.lane(self.path[0]).length \
+                and self.last_choice.get(self.path[0][0]) == "straight":
+            # already in the box, going straight: a panicked driver still yanks the wheel while the
+            # turn's exit is ahead (at speed the car cannot make it: it runs wide over the kerb)
             node = self.path[0][0]
             lanes = self.approach_options[node].get(turn.direction)
             if lanes:
@@ -611,6 +620,17 @@ class DriverCar(PathCar, Vehicle):
         total = max(veh.max_decel, veh.max_lateral_accel) + 0.5
         lateral = min(veh.max_lateral_accel, np.sqrt(max(total**2 - self.accel**2, 1.0)))
         grip = lateral / max(v, 0.1)
+        # a late swerve that asks the tyres for well beyond their grip (sharp steering while braking
+        # hard, at speed) slides: the car runs wide over the kerb (SPEC.md §2, "too late")
+        swerving = self.world.time < self.swerving_until
+        if swerving and abs(yaw_rate) * v > self.SKID_RATIO * lateral:
+            self.skid_time += dt
+        else:
+            self.skid_time = 0.0
+        if not swerving:
+            self.ran_wide = False
+        elif self.skid_time >= self.SKID_TIME:
+            self.ran_wide = True
         yaw_rate = float(np.clip(yaw_rate, -grip, grip))
         self.position = self.position + v * np.array([np.cos(self.heading + beta), np.sin(self.heading + beta)]) * dt
         self.heading = _wrap(self.heading + yaw_rate * dt)
@@ -623,6 +643,8 @@ class DriverCar(PathCar, Vehicle):
 
 class World:
     """A town, a driver's car on a route, traffic around it, right-of-way and event counters."""
+
+    BOX_PAVING = 0.75  # m of paving beyond the connector lanes' edges inside a junction box
 
     def __init__(self, town: Town, driver: Driver, route: Route, seed: int = 0, n_traffic: int = 8,
                  frequency: int = 10) -> None:
@@ -789,7 +811,7 @@ class World:
 
     def _curb(self) -> None:
         ego = self.ego
-        off = self._over_edge(ego)
+        off = ego.ran_wide or self._over_edge(ego)
         if off and not ego.off_road:
             self.events.edge_strikes += 1
             self.events.log.append(("edge", round(self.time, 1)))
@@ -798,18 +820,22 @@ class World:
 
     def _over_edge(self, car: PathCar) -> bool:
         """The car's body is more than 0.75 m over the road edge: a side of the car (its centre
-        line ± (width/2 - 0.75)) lies outside every lane, outside junction boxes. Checking the
-        sides, not the centre, keeps a lane change between two parallel lanes on the road."""
+        line ± (width/2 - 0.75)) lies outside every lane. Checking the sides, not the centre, keeps
+        a lane change between two parallel lanes on the road. Inside a junction box the paved
+        area is the union of its connector lanes (plus a little paving between them): the corners
+        are kerbs, which a car cutting a turn short, or running wide out of it, mounts."""
         grid = self.town.lane_grid
         inside = LANE_WIDTH / 2 - car.WIDTH / 2 + 0.75  # centre this close to a lane: sides on it
-        if grid.distance_to_road(car.position) <= inside or self._in_box(car.position):
+        if grid.distance_to_road(car.position) <= inside:
             return False
+        edge = LANE_WIDTH / 2 + (self.BOX_PAVING if self._in_box(car.position, 2.0) else 0.0)
         h = car.heading
         normal = np.array([-np.sin(h), np.cos(h)]) * (car.WIDTH / 2 - 0.75)
-        return any(grid.distance_to_road(car.position + sign * normal) > LANE_WIDTH / 2 for sign in (1, -1))
+        return any(grid.distance_to_road(car.position + sign * normal) > edge for sign in (1, -1))
 
-    def _in_box(self, p: np.ndarray) -> bool:
+    def _in_box(self, p: np.ndarray, beyond: float = -1.0) -> bool:
+        """``p`` lies in a cross junction's box (grown by ``beyond`` metres: its rounded corners)."""
         for j in self.town.junctions.values():
-            if j.kind == "cross" and np.max(np.abs(p - j.center)) < j.size - 1.0:
+            if j.kind == "cross" and np.max(np.abs(p - j.center)) < j.size + beyond:
                 return True
         return False
