@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 study: $(STAMP)
-	@$(BIN)/pernav study --preset default --out $(OUT) || { echo "make study: the study (issue #4) is not built yet"; exit 2; }
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/pernav study --preset default --out $(OUT) --workers 2 --resume
 
 test: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 tests

@@ -6,6 +6,8 @@ Example:
     $ pernav towns --out maps/
     $ pernav drive --town Town3 --policy oracle --user user3 --visual foggy --routes 0 1 --json
     $ pernav bench sim --json
+    $ pernav study --preset default --out runs/default --workers 2
+    $ pernav bench planner --json
 """
 
 from __future__ import annotations
@@ -15,9 +17,12 @@ import json
 import sys
 from pathlib import Path
 
+from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
+
+BENCH_CHOICES = ("sim", "planner", "train")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
 
 
 class UsageError(ValueError):
@@ -88,18 +93,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_drive)
 
     p = sub.add_parser("bench", help="benchmarks, as ratios measured in one run")
-    p.add_argument("which", nargs="?", default="all", choices=["sim", "all"])
+    p.add_argument("which", nargs="?", default="all", choices=[*BENCH_CHOICES, "all"])
     p.add_argument("--json", action="store_true")
     p.add_argument("--quick", action="store_true", help="shorter measurement (for smoke tests)")
     p.set_defaults(func=_bench)
+
+    p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
+    p.add_argument("--preset", default="default", help="smoke | default | paper")
+    p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
+    p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (SPEC.md §5)")
+    p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
+    p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
+    p.set_defaults(func=_study)
     return parser
+
+
+def _study(args: argparse.Namespace) -> None:
+    import logging
+
+    from pernav.study import load_schedule, preset, run_study
+
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
+    if args.workers < 1:
+        raise UsageError(f"--workers must be >= 1, got {args.workers}")
+    cfg = preset(args.preset)
+    if args.schedule:
+        cfg.schedule = load_schedule(args.schedule)
+    if args.towns:
+        cfg.towns = list(args.towns)
+    if args.seed is not None:
+        cfg.seed = args.seed
+    results = run_study(cfg, args.out, resume=args.resume, workers=args.workers)
+    from pernav.study.report import collision_table
+
+    print(collision_table(results))
+    print(f"results: {Path(args.out) / 'results.json'}, report: {Path(args.out) / 'report.md'} "
+          f"({results['timing']['wall_s']} s)")
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (UsageError, TownError, ProfileError, RouteError, ValueError, FileNotFoundError) as exc:
+    except (UsageError, TownError, ProfileError, RouteError, ValueError, FileNotFoundError, CheckpointError) as exc:
         print(f"pernav {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

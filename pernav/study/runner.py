@@ -37,6 +37,7 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.tree_search import TreeSearchPlanner
 from pernav.study.config import LEARNERS, StudyConfig
+from pernav.study.errors import CheckpointError
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
@@ -45,10 +46,6 @@ from pernav.trainer.ftml import FTMLTrainer
 __all__ = ["CheckpointError", "run_town"]
 
 log = logging.getLogger("pernav.study")
-
-
-class CheckpointError(RuntimeError):
-    """A checkpoint is missing, partial or corrupted (the message names the file)."""
 
 
 # ----- policies ---------------------------------------------------------------------------------------

@@ -1,0 +1,152 @@
+"""The online study (issue #4): smoke preset schema, determinism across workers, resume, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pernav.cli import main
+from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
+
+METHOD_KEYS = {"tracking_cost", "collisions", "vehicle_collisions", "edge_strikes", "completion", "episodes"}
+SUMMARY_KEYS = {"tracking_cost_mean", "collisions_mean", "collisions_std", "completion_mean"}
+
+
+def _strip_timing(results: dict) -> dict:
+    return {k: v for k, v in results.items() if k != "timing"}
+
+
+def _smoke(towns: list[str]):
+    cfg = preset("smoke")
+    cfg.towns = towns
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def two_workers(tmp_path_factory) -> tuple[Path, dict]:
+    out = tmp_path_factory.mktemp("smoke2") / "study"
+    return out, run_study(_smoke(["Town1", "Town2"]), out, workers=2)
+
+
+@pytest.mark.slow
+def test_smoke_results_match_the_schema(two_workers):
+    out, results = two_workers
+    on_disk = json.loads((out / "results.json").read_text())
+    assert on_disk == json.loads(json.dumps(results))
+    assert {"config", "iterations", "summary"} <= set(on_disk)
+    labels = [it["label"] for it in on_disk["iterations"]]
+    assert labels == ["Offline 0", "Online 0", "Online 8"]
+    for it in on_disk["iterations"]:
+        assert it["phase"] in ("offline", "online")
+        assert {"name", "profile", "context"} <= set(it["user"])
+        assert set(it["user"]["context"]) == {"vehicle", "camera", "visual", "equipment"}
+        for town, methods in it["towns"].items():
+            assert town in ("Town1", "Town2")
+            expected = {"explore"} if it["phase"] == "offline" else set(preset("smoke").methods)
+            assert set(methods) == expected
+            for figures in methods.values():
+                assert METHOD_KEYS <= set(figures)
+                assert 0.0 <= figures["completion"] <= 1.0
+                assert figures["collisions"] == figures["vehicle_collisions"] + figures["edge_strikes"]
+                assert figures["tracking_cost"] >= 0
+    for town in ("Town1", "Town2"):
+        for method, s in on_disk["summary"][town].items():
+            assert SUMMARY_KEYS <= set(s), method
+    assert (out / "report.md").read_text().startswith("# pernav study")
+    assert (out / "figures" / "Town1_cost.png").stat().st_size > 1000
+    assert (out / "figures" / "Town1_regret.png").exists()
+    assert list((out / "logs").rglob("*.csv")), "scalar logs through TorchRL's CSVLogger"
+
+
+@pytest.mark.slow
+def test_same_seed_same_results_for_one_and_two_workers(two_workers, tmp_path):
+    _, results2 = two_workers
+    results1 = run_study(_smoke(["Town1", "Town2"]), tmp_path / "one", workers=1, report=False)
+    assert json.dumps(_strip_timing(results1), sort_keys=True) == json.dumps(_strip_timing(results2), sort_keys=True)
+
+
+@pytest.mark.slow
+def test_killed_study_resumes_to_the_same_results(two_workers, tmp_path):
+    _, reference = two_workers
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--towns", "Town1", "--out", str(out)]
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    manifest = out / "checkpoints" / "Town1" / "manifest.json"
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:  # kill once the second entry is checkpointed
+        if manifest.exists() and json.loads(manifest.read_text())["index"] >= 1:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the study finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "results.json").exists()
+    resumed = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    got = json.loads((out / "results.json").read_text())
+    for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
+        assert it_got["towns"]["Town1"] == json.loads(json.dumps(it_ref["towns"]["Town1"]))
+
+
+def test_paper_schedule_is_the_table():
+    entries = paper_schedule()
+    assert [e.label for e in entries][:4] == ["Offline 0", "Offline 1", "Offline 2", "Online 0"]
+    assert len([e for e in entries if e.phase == "online"]) == 15
+    assert sum(e.runs_in("Town4") for e in entries if e.phase == "online") == 9
+    assert entries[-1].equipment == "wheel" and entries[10].driver == "user2"
+
+
+@pytest.mark.parametrize("entry, words", [
+    ({"label": "a", "phase": "offline", "driver": "user1", "visual": "sunny"}, ["entry 0", "'visual'", "sunny"]),
+    ({"label": "a", "phase": "later", "driver": "user1"}, ["entry 0", "'phase'"]),
+    ({"label": "a", "phase": "offline", "driver": {"reaction_time": 99}}, ["entry 0", "'driver'", "reaction_time"]),
+    ({"label": "a", "phase": "offline", "driver": "user1", "colour": "red"}, ["entry 0", "'colour'"]),
+    ({"label": "a", "phase": "offline", "driver": "user1", "towns": ["Town9"]}, ["entry 0", "'towns'", "Town9"]),
+    ({"label": "a", "phase": "offline"}, ["entry 0", "'driver'", "missing"]),
+])
+def test_bad_schedule_entries_name_entry_and_field(entry, words):
+    with pytest.raises(ScheduleError) as err:
+        parse_schedule([entry, {"label": "b", "phase": "online", "driver": "user2"}])
+    for w in words:
+        assert w in str(err.value)
+
+
+def test_schedule_files_yaml_and_json(tmp_path):
+    rows = [{"label": "warm", "phase": "offline", "driver": "user1"},
+            {"label": "live", "phase": "online", "driver": {"user": "user3", "reaction_time": 2.5}, "visual": "foggy"}]
+    (tmp_path / "s.json").write_text(json.dumps(rows))
+    (tmp_path / "s.yaml").write_text("- {label: warm, phase: offline, driver: user1}\n"
+                                     "- {label: live, phase: online, driver: {user: user3, reaction_time: 2.5}, "
+                                     "visual: foggy}\n")
+    a, b = load_schedule(tmp_path / "s.json"), load_schedule(tmp_path / "s.yaml")
+    assert a == b and a[1].profile().reaction_time == 2.5
+    with pytest.raises(ScheduleError, match="does not exist"):
+        load_schedule(tmp_path / "missing.yaml")
+
+
+def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, capsys):
+    out = tmp_path / "study"
+    out.mkdir()
+    (out / "results.json").write_text("precious")
+    (out / "study.json").write_text("{}")
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps([{"label": "x", "phase": "offline", "driver": "user1", "camera": "drone"}]))
+    assert main(["study", "--preset", "smoke", "--out", str(out), "--schedule", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "entry 0" in err and "'camera'" in err and len(err.strip().splitlines()) == 1
+    assert main(["study", "--preset", "tiny", "--out", str(out)]) == 2
+    assert "unknown preset 'tiny'" in capsys.readouterr().err
+    assert main(["study", "--preset", "smoke", "--out", str(out)]) == 2  # a study is there: needs --resume
+    assert "already holds a study" in capsys.readouterr().err
+    assert main(["study", "--preset", "smoke", "--out", str(out), "--resume"]) == 2  # ... and it is another one
+    assert "different study" in capsys.readouterr().err
+    assert (out / "results.json").read_text() == "precious"
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "study.json"]
