@@ -11,8 +11,11 @@ Example:
 
 from __future__ import annotations
 
+import statistics
 import time
 from typing import Any
+
+import numpy as np
 
 
 def _steps_per_second(env, policy, steps: int, seed: int = 0, options: dict | None = None) -> float:
@@ -54,11 +57,217 @@ def bench_sim(quick: bool = False) -> dict[str, Any]:
     }
 
 
-BENCHMARKS = {"sim": bench_sim}
+def _median_ms(times: list[float]) -> float:
+    return round(1000 * statistics.median(times), 3)
+
+
+def _p95_ms(times: list[float]) -> float:
+    return round(1000 * float(np.percentile(times, 95)), 3)
+
+
+def _timed(fn, *args) -> tuple[float, Any]:
+    t0 = time.perf_counter()
+    out = fn(*args)
+    return time.perf_counter() - t0, out
+
+
+def _recorded_states(towns: dict[str, list[int]], config: dict, K: int = 5):
+    """Each step's tensordict of explore-policy episodes (the planner's real inputs), concatenated."""
+    import torch
+
+    from pernav.env.torchrl_env import explore_module
+    from pernav.trainer.collect import drive, history_env
+
+    trajectories = [drive(history_env(town, {"route": r, "user": "user1"}, config=config, seed=r, K=K),
+                          explore_module())
+                    for town, routes in towns.items() for r in routes]
+    return torch.cat(trajectories)
+
+
+def _mlp_flops(model) -> int:
+    """Multiply-adds x 2 of one MLP evaluation."""
+    return 2 * sum(layer.in_features * layer.out_features for layer in _linears(model))
+
+
+def _linears(model) -> list:
+    import torch
+
+    return [m for m in model.net.modules() if isinstance(m, torch.nn.Linear)]
+
+
+def _matmul_chain_seconds(model, batch_sizes: list[int], repeats: int) -> float:
+    """Median time of a bare ``x @ W.T + b`` (+ReLU) chain with the model's layer shapes over the same
+    batch sizes as the search's levels: the attainable rate of this CPU for this work."""
+    import torch
+
+    layers = [(m.weight.detach(), m.bias.detach()) for m in _linears(model)]
+    inputs = [torch.randn(n, layers[0][0].shape[1]) for n in batch_sizes]
+
+    def chain() -> None:
+        for x in inputs:
+            for i, (w, b) in enumerate(layers):
+                x = torch.addmm(b, x, w.t())
+                if i + 1 < len(layers):
+                    x = torch.relu(x)
+
+    chain()
+    return statistics.median(_timed(chain)[0] for _ in range(repeats))
+
+
+def bench_planner(quick: bool = False) -> dict[str, Any]:
+    """TreeSearchPlanner per-decision latency at the paper's size (MLP [256, 256, 256], 7 actions, H=5,
+    K=5; random init, normalization fitted on explore-policy data), all in one process:
+
+    * exhaustive level-by-level search (mask all-true) vs the flat enumeration on the same states;
+    * the masked search (the planner as deployed) on states recorded from real Town1/Town3 episodes;
+    * the exhaustive search's achieved FLOP/s vs a bare matmul chain of the same layer shapes and batches;
+    * the 21-action beam search (beam 64, masked) on states from a 21-action env.
+    """
+    import torch
+
+    from pernav.model import DynamicsModel
+    from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    from pernav.planner import TreeSearchPlanner
+
+    torch.manual_seed(0)
+    routes = {"Town1": [0], "Town3": [0]} if quick else {"Town1": [0, 1, 2], "Town3": [0, 1, 2]}
+    fast = {"n_traffic": 2}
+    data = _recorded_states(routes, fast)
+    model = DynamicsModel()
+    model.fit_normalization(data["history"], data["action"], data["next", "observation"])
+    planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)))
+    keys = planner.in_keys
+
+    def root(td, full_mask: bool):
+        mask = torch.ones_like(td["action_mask"]) if full_mask else td["action_mask"]
+        return td["observation"], td["history"], td["plan_goals"], td["explore_plan"], mask
+
+    # (1) exhaustive level-by-level vs flat enumeration, mask all-true
+    n_exhaustive = 3 if quick else 8
+    picks = torch.linspace(0, data.shape[0] - 1, n_exhaustive).long()
+    planner.search(*root(data[0], True))  # warm-up
+    level_t, flat_t, same, evaluations = [], [], True, (0, 0)
+    for i in picks.tolist():
+        args = root(data[i], True)
+        t_level, a = _timed(planner.search, *args)
+        t_flat, b = _timed(planner.flat_search, *args)
+        level_t.append(t_level)
+        flat_t.append(t_flat)
+        same = same and torch.equal(a.actions, b.actions)
+        evaluations = (a.evaluations, b.evaluations)
+    # (2) the masked search on every recorded step (up to a cap)
+    n_masked = 40 if quick else 400
+    steps = data[torch.linspace(0, data.shape[0] - 1, min(n_masked, data.shape[0])).long()].select(*keys)
+    planner(steps[0].clone())
+    masked_t = [_timed(planner, steps[i].clone())[0] for i in range(steps.shape[0])]
+    masked_nodes = [r.evaluations for r in planner.last]
+    # (3) achieved FLOP/s of the exhaustive search vs a bare matmul chain at the level batch sizes
+    batches = [7 ** (h + 1) for h in range(planner.horizon)]
+    flops = _mlp_flops(model) * sum(batches)
+    t_search = statistics.median(level_t)
+    t_chain = _matmul_chain_seconds(model, batches, repeats=3 if quick else 10)
+    # (4) 21 actions: beam search on states from a 21-action env
+    data21 = _recorded_states({"Town1": [0]} if quick else {"Town1": [0, 1], "Town3": [0]},
+                              {**fast, "adaptive_speed": True})
+    model21 = DynamicsModel(n_actions=21)
+    model21.fit_normalization(data21["history"], data21["action"], data21["next", "observation"])
+    beam = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model21)), beam=64)
+    steps21 = data21[torch.linspace(0, data21.shape[0] - 1, min(n_masked // 2, data21.shape[0])).long()]
+    steps21 = steps21.select(*keys)
+    beam(steps21[0].clone())
+    beam_t = [_timed(beam, steps21[i].clone())[0] for i in range(steps21.shape[0])]
+    ratio = statistics.median(level_t) / statistics.median(flat_t)
+    return {
+        "threads": torch.get_num_threads(),
+        "exhaustive_states": len(level_t),
+        "exhaustive_level_ms_median": _median_ms(level_t),
+        "exhaustive_flat_ms_median": _median_ms(flat_t),
+        "level_vs_flat_ratio": round(ratio, 3),
+        "level_vs_flat_same_actions": same,
+        "model_evaluations_level_flat": list(evaluations),
+        "masked_states": len(masked_t),
+        "masked_ms_median": _median_ms(masked_t),
+        "masked_ms_p95": _p95_ms(masked_t),
+        "masked_nodes_median": int(statistics.median(masked_nodes)),
+        "exhaustive_gflops": round(flops / t_search / 1e9, 2),
+        "matmul_chain_gflops": round(flops / t_chain / 1e9, 2),
+        "flops_fraction_of_matmul": round(t_chain / t_search, 3),
+        "beam21_width": 64,
+        "beam21_states": len(beam_t),
+        "beam21_ms_median": _median_ms(beam_t),
+        "beam21_ms_p95": _p95_ms(beam_t),
+        "target": "level_vs_flat_ratio <= 0.3, masked_ms_median <= 20",
+    }
+
+
+def _synthetic_transitions(shape: tuple[int, ...], n_actions: int = 7, K: int = 5, seed: int = 0):
+    import torch
+    from tensordict import TensorDict
+
+    g = torch.Generator().manual_seed(seed)
+    return TensorDict({"history": torch.randn(*shape, K, 14 + n_actions, generator=g),
+                       "action": torch.randint(n_actions, shape, generator=g),
+                       "observation": torch.randn(*shape, 14, generator=g),
+                       ("next", "observation"): torch.randn(*shape, 14, generator=g)}, list(shape))
+
+
+def bench_train(quick: bool = False, inner_windows: int | None = None) -> dict[str, Any]:
+    """Time of one meta (FTML) update vs one plain (non-adaptive) update, paper sizes, same process.
+
+    plain: L-step loss on a [128, 5] batch, backward, Adam step.
+    meta:  U(P, tau) on one 120-step trajectory (second order: the adaptation step is differentiated),
+           then the L-step loss of the adapted parameters on a [128, 5] batch, backward, Adam step.
+           The first-order variant (adaptation gradient treated as a constant) is timed for reference.
+    Timings do not depend on the data's values: the batches are synthetic.
+    """
+    import torch
+
+    from pernav.model import DynamicsModel, adapt, multistep_loss
+
+    torch.manual_seed(0)
+    model = DynamicsModel()
+    optim = torch.optim.Adam(model.parameters(), lr=1e-3)
+    batch = _synthetic_transitions((128, 5))
+    tau = _synthetic_transitions((120,), seed=1)
+
+    def plain() -> None:
+        optim.zero_grad()
+        multistep_loss(model, batch).backward()
+        optim.step()
+
+    def meta(first_order: bool = False) -> None:
+        optim.zero_grad()
+        adapted = adapt(model, tau, alpha=0.01, L=5, first_order=first_order)
+        multistep_loss(model, batch, params=adapted).backward()
+        optim.step()
+
+    repeats = 3 if quick else 15
+    plain(), meta(), meta(True)  # warm-up
+    plain_t, meta_t, first_t = [], [], []
+    for _ in range(repeats):  # interleaved, so drifts in machine load hit all alike
+        plain_t.append(_timed(plain)[0])
+        meta_t.append(_timed(meta)[0])
+        first_t.append(_timed(meta, True)[0])
+    ratio = statistics.median(meta_t) / statistics.median(plain_t)
+    return {
+        "threads": torch.get_num_threads(),
+        "batch_windows": 128,
+        "L": 5,
+        "tau_steps": 120,
+        "plain_update_ms_median": _median_ms(plain_t),
+        "meta_update_ms_median": _median_ms(meta_t),
+        "meta_vs_plain_ratio": round(ratio, 2),
+        "meta_first_order_update_ms_median": _median_ms(first_t),
+        "meta_first_order_vs_plain_ratio": round(statistics.median(first_t) / statistics.median(plain_t), 2),
+        "target": "meta_vs_plain_ratio <= 3 (second order, the faithful default)",
+    }
+
+
+BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train}
 
 
 def run_benchmarks(which: str = "all", quick: bool = False) -> dict[str, dict[str, Any]]:
-    """Run one benchmark (``sim``) or ``all``; returns {name: figures}."""
+    """Run one benchmark (``sim``, ``planner``, ``train``) or ``all``; returns {name: figures}."""
     if which != "all" and which not in BENCHMARKS:
         raise ValueError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)} or all")
     names = list(BENCHMARKS) if which == "all" else [which]
