@@ -35,7 +35,7 @@ from pernav.world.simulation import N_INSTRUCTIONS
 
 __all__ = ["RING_REACH", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions", "explore_plan", "plan_goals"]
 
-TURN_REACH = 150.0  # m: a junction further than this is not "ahead within reach"
+TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"
 TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)  # everything but silence refers to a junction or a roundabout
 
