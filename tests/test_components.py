@@ -269,7 +269,8 @@ def test_first_order_drops_the_second_order_term() -> None:
 
 
 def _windows(tau, L):
-    index = torch.arange(tau.shape[0] - L + 1)[:, None] + torch.arange(L)[None]
+    """The L-slices that tile tau (adapt's default, stride L)."""
+    index = torch.arange(0, tau.shape[0] - L + 1, L)[:, None] + torch.arange(L)[None]
     return tau[index]
 
 

@@ -36,22 +36,26 @@ def meta_parameters(model: torch.nn.Module) -> TensorDictBase:
     return TensorDict.from_module(model)
 
 
-def trajectory_windows(trajectory: TensorDictBase, L: int) -> TensorDictBase:
-    """All ``[L]`` slices of consecutive transitions of a ``[T]`` trajectory, shape ``[T - L + 1, L]``
-    (a trajectory shorter than ``L`` gives one slice of length ``T``)."""
+def trajectory_windows(trajectory: TensorDictBase, L: int, stride: int = 1) -> TensorDictBase:
+    """The ``[L]`` slices of consecutive transitions of a ``[T]`` trajectory starting every ``stride`` steps,
+    shape ``[N, L]`` (a trajectory shorter than ``L`` gives one slice of length ``T``). ``stride=1``: every
+    slice; ``stride=L``: slices that tile the trajectory (each transition predicted once)."""
     if trajectory.ndim != 1:
         raise ValueError(f"a trajectory must be a 1-D tensordict, got batch_size {tuple(trajectory.shape)}")
     T = trajectory.shape[0]
     if T == 0:
         raise ValueError("cannot adapt on an empty trajectory")
     L = min(L, T)
-    index = torch.arange(T - L + 1).unsqueeze(1) + torch.arange(L).unsqueeze(0)
+    index = torch.arange(0, T - L + 1, max(int(stride), 1)).unsqueeze(1) + torch.arange(L).unsqueeze(0)
     return trajectory[index]
 
 
 def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
-          first_order: bool = False, params: TensorDictBase | None = None) -> TensorDictBase:
-    """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over all L-slices of ``tau``.
+          first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None) -> TensorDictBase:
+    """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over the L-slices of ``tau``
+    (by default the slices that tile ``tau``, ``stride=L``: every transition is predicted once, at every
+    rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
+    transitions).
 
     ``params`` defaults to the model's own (meta) parameters. Buffers (normalization statistics) are
     carried over unchanged.
@@ -60,7 +64,7 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad]
     if not keys:
         raise ValueError("no parameter requires grad: nothing to adapt")
-    windows = trajectory_windows(trajectory, L)
+    windows = trajectory_windows(trajectory, L, L if stride is None else stride)
     with torch.enable_grad():
         loss = multistep_loss(model, windows, params=params)
         grads = torch.autograd.grad(loss, [params.get(k) for k in keys], create_graph=not first_order)

@@ -37,9 +37,18 @@ def wrap_angle(a: torch.Tensor) -> torch.Tensor:
     return torch.remainder(a + torch.pi, 2 * torch.pi) - torch.pi
 
 
-def _rotate(x: torch.Tensor, y: torch.Tensor, angle: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    c, s = torch.cos(angle), torch.sin(angle)
-    return c * x - s * y, s * x + c * y
+def _rotate_pairs(state: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """``[..., 3, 2]``: the (x, y), (vx, vy) and (goal_x, goal_y) pairs of ``state`` rotated by ``angle``."""
+    pairs = torch.stack([state[..., X:Y + 1], state[..., VX:VY + 1], state[..., GX:GY + 1]], dim=-2)
+    c, s = torch.cos(angle)[..., None, None], torch.sin(angle)[..., None, None]
+    px, py = pairs[..., 0:1], pairs[..., 1:2]
+    return torch.cat([c * px - s * py, s * px + c * py], dim=-1)
+
+
+def _assemble(pairs: torch.Tensor, state: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
+    """A 14-vector from rotated pairs ``[..., 3, 2]``, the other entries of ``state`` and a heading entry."""
+    return torch.cat([pairs[..., 0, :], state[..., 2:3], pairs[..., 1, :], state[..., 5:6], heading.unsqueeze(-1),
+                      state[..., 7:9], pairs[..., 2, :], state[..., 11:]], dim=-1)
 
 
 def ego_delta(state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
@@ -51,21 +60,13 @@ def ego_delta(state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
     True
     """
     d = next_state - state
-    theta = state[..., HEADING]
-    out = d.clone()
-    for i, j in PAIRS:
-        out[..., i], out[..., j] = _rotate(d[..., i], d[..., j], -theta)
-    out[..., HEADING] = wrap_angle(d[..., HEADING])
-    return out
+    return _assemble(_rotate_pairs(d, -state[..., HEADING]), d, wrap_angle(d[..., HEADING]))
 
 
 def apply_delta(state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     """Inverse of :func:`ego_delta`: the next state from ``state`` and an egocentric difference."""
-    theta = state[..., HEADING]
-    d = delta.clone()
-    for i, j in PAIRS:
-        d[..., i], d[..., j] = _rotate(delta[..., i], delta[..., j], theta)
-    return state + d
+    world = _assemble(_rotate_pairs(delta, state[..., HEADING]), delta, delta[..., HEADING])
+    return state + world
 
 
 def _safe_std(x: torch.Tensor) -> torch.Tensor:
@@ -118,17 +119,18 @@ class DynamicsModel(nn.Module):
         return torch.cat([history[..., :-1, :], newest], dim=-2)
 
     def features(self, window: torch.Tensor) -> torch.Tensor:
-        """Flat egocentric features of a window (relative to its newest state), ``[..., n_features]``."""
+        """Flat egocentric features of a window, ``[..., n_features]``: per row, position, velocity and goal
+        relative to the newest state's position and rotated by its heading, sin/cos of the heading
+        difference, the other state entries, and the action."""
         states, actions = window[..., : self.state_dim], window[..., self.state_dim:]
         now = states[..., -1:, :]
         theta = now[..., HEADING]
-        rel = states.clone()
-        for i, j in ((X, Y), (GX, GY)):
-            rel[..., i], rel[..., j] = _rotate(states[..., i] - now[..., i], states[..., j] - now[..., j], -theta)
-        rel[..., VX], rel[..., VY] = _rotate(states[..., VX], states[..., VY], -theta)
+        origin = torch.cat([now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], GX - Y - 1),
+                            now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], self.state_dim - GY - 1)], dim=-1)
+        pairs = _rotate_pairs(states - origin, -theta)  # vx, vy are not shifted: the origin is 0 there
         dtheta = states[..., HEADING] - theta
-        rel[..., HEADING] = torch.sin(dtheta)
-        feats = torch.cat([rel, torch.cos(dtheta).unsqueeze(-1), actions], dim=-1)
+        feats = torch.cat([pairs.flatten(-2), states[..., 2:3], states[..., 5:6], torch.sin(dtheta).unsqueeze(-1),
+                           torch.cos(dtheta).unsqueeze(-1), states[..., 7:9], states[..., 11:], actions], dim=-1)
         return feats.flatten(-2)
 
     # ----- prediction ----------------------------------------------------------------------------
