@@ -12,6 +12,12 @@ PROFILES = {
     "fast_keyboard": (named_user("user4"), Context(equipment="keyboard")),
     "user1": (named_user("user1"), Context()),
     "slow_fog_truck": (named_user("user3"), Context(vehicle="cybertruck", visual="foggy")),
+    "truck": (named_user("user7"), Context(vehicle="cybertruck")),
+}
+ATYPICAL = {  # SPEC.md §3 users whose timing differs from the population average
+    "slow_fog_truck": ("user3", {"vehicle": "cybertruck", "visual": "foggy"}),
+    "fast_keyboard": ("user4", {"equipment": "keyboard"}),
+    "distracted": ("user6", {}),
 }
 
 
@@ -39,6 +45,18 @@ def test_too_late_misses_and_too_early_goes_wrong(sweeps):
 
 
 @pytest.mark.slow
+def test_too_late_swerves_strike_for_truck_and_fast_keyboard(sweeps):
+    # between "missed" and "clean" a late prompt makes the driver swerve; at speed the swerve asks
+    # the tyres for more than their grip and the car runs wide over the kerb
+    for k in ("fast_keyboard", "truck"):
+        rows = sweeps[k]
+        first_clean = next(i for i, r in enumerate(rows) if r["outcome"] == "clean")
+        late = rows[:first_clean]
+        assert any(r["edge_strikes"] + r["vehicle_collisions"] > 0 for r in late), (k, late)
+        assert any(r["outcome"] == "strike" for r in late), (k, [r["outcome"] for r in late])
+
+
+@pytest.mark.slow
 def test_explore_completes_routes_with_the_average_driver():
     done, collisions = 0, 0
     for town in TOWN_NAMES:
@@ -46,6 +64,19 @@ def test_explore_completes_routes_with_the_average_driver():
         done += sum(e["completed"] for e in out["episodes"])
         collisions += out["summary"]["collisions"]
     print(f"explore, average driver: {done}/50 routes completed, {collisions} collisions")
-    # Regression guard at the measured level (43/50 on 2026-11-22). The issue target is 48/50 (95 %)
-    # and is NOT met yet: see docs/simulator.md, "Known gaps".
-    assert done >= 42
+    assert done >= 48  # issue #2: explore is a strong baseline (>= 95 % with the average driver)
+    assert collisions <= 8
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("user", list(ATYPICAL))
+def test_oracle_beats_explore_for_atypical_users(user):
+    name, context = ATYPICAL[user]
+    out = {p: drive_routes("Town1", p, name, context=context) for p in ("explore", "oracle")}
+    cost = {p: o["summary"]["tracking_cost"] for p, o in out.items()}
+    hits = {p: o["summary"]["collisions"] for p, o in out.items()}
+    print(user, cost, hits)
+    assert hits["oracle"] <= hits["explore"], (user, hits)
+    if user == "slow_fog_truck" and cost["oracle"] > cost["explore"]:
+        pytest.xfail(f"known gap (docs/simulator.md): oracle {cost['oracle']:.0f} vs explore {cost['explore']:.0f}")
+    assert cost["oracle"] < cost["explore"], (user, cost)

@@ -63,6 +63,14 @@ class PromptPolicy:
     prepare_gap: float = 6.0
     step: float = 1.0  # s between two decisions of the policy (one env step)
 
+    def prepare_lead(self, v: float, lead: float) -> float:
+        """Metres before the stop line at which to say "prepare": ``prepare_gap`` seconds before the
+        "turn", but late enough that the driver still remembers it when committing (the prepare is
+        its fallback when the "turn" is lost)."""
+        d = self.driver
+        remembered = v * (audio_duration(3) + d.reaction_time + d.memory + d.decision_time - self.margin)
+        return min(lead + v * (audio_duration(3) + self.prepare_gap), remembered)
+
     def _brake_distance(self, v: float, v_target: float) -> float:
         b = 0.6 * self.driver.comfort_decel
         return max(v * v - v_target * v_target, 0.0) / (2 * b)
@@ -105,7 +113,7 @@ class PromptPolicy:
             lead = self.turn_lead(v)
             if dist - v * self.step <= lead:  # at the next step it would be too late
                 desired = TURN[m.kind]
-            elif dist <= lead + v * (audio_duration(3) + self.prepare_gap):
+            elif dist <= self.prepare_lead(v, lead):
                 desired = PREPARE[m.kind]
         elif m.kind in ("enter", "pass"):
             exit_ = next((x for x in ahead[1:] if x.kind == "exit"), None)

@@ -340,15 +340,16 @@ class DriverCar(PathCar, Vehicle):
         """The instruction was played: understood (or misheard) and acted on after audio + reaction."""
         if instruction == 0:
             return
-        d, rng, ev = self.driver, self.world.rng, self.world.events
-        if rng.random() > d.understanding(playback):
-            if instruction in (1, 2, 3, 4) and rng.random() < 0.5:  # misheard left <-> right
+        d, ev = self.driver, self.world.events
+        heard, swapped, complied = self.world.driver_rng.random(3)  # three draws per play, always
+        if heard > d.understanding(playback):
+            if instruction in (1, 2, 3, 4) and swapped < 0.5:  # misheard left <-> right
                 instruction = {1: 2, 2: 1, 3: 4, 4: 3}[instruction]
                 ev.misunderstood += 1
             else:
                 ev.misunderstood += 1
                 return
-        if rng.random() > d.compliance:
+        if complied > d.compliance:
             ev.ignored += 1
             return
         active = now + audio_duration(instruction, playback) + d.reaction_time
@@ -434,7 +435,7 @@ class DriverCar(PathCar, Vehicle):
 
     def commit(self, node: str, now: float, late: bool = False) -> None:
         """Choose the branch at ``node`` from what the driver has heard, and extend the path."""
-        rng = self.world.rng
+        follow_prep, pick = self.world.guess_rng.random(2)  # two draws per decision, always
         options = self._options(node)
         turn = self.active(now, (1, 2))
         prep = self.active(now, (3, 4))
@@ -447,11 +448,11 @@ class DriverCar(PathCar, Vehicle):
             if turn is not None and turn.direction in options:
                 choice = turn.direction
                 self.consume((1, 2, 3, 4), now)
-            elif prep is not None and prep.direction in options and rng.random() < 0.5:
+            elif prep is not None and prep.direction in options and follow_prep < 0.5:
                 choice = prep.direction
                 self.consume((3, 4), now)
             if choice is None:
-                choice = "straight" if "straight" in options else sorted(options)[int(rng.integers(len(options)))]
+                choice = "straight" if "straight" in options else sorted(options)[int(pick * len(options))]
         self.approach_options[node] = options
         lanes = options[choice]
         if len(lanes) == 2:  # lane change needed right before the junction
@@ -650,6 +651,10 @@ class World:
                  frequency: int = 10) -> None:
         self.town = town
         self.rng = np.random.default_rng(seed)
+        # the driver's own randomness (hearing, compliance, guesses) has its own stream, so that two
+        # policies driving the same seed face the same draws for the k-th instruction they play
+        self.driver_rng = np.random.default_rng([seed, 1])
+        self.guess_rng = np.random.default_rng([seed, 2])  # the driver's guesses at junctions
         self.road = Road(network=town.network, np_random=np.random.RandomState(seed))
         self.dt = 1.0 / frequency
         self.time = 0.0
