@@ -23,6 +23,7 @@ from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
 BENCH_CHOICES = ("sim", "planner", "train")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
+MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
 
 
 class UsageError(ValueError):
@@ -33,6 +34,8 @@ def _towns(args: argparse.Namespace) -> None:
     from pernav.world.plotting import plot_town
 
     out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     for name in args.towns or TOWN_NAMES:
         path = plot_town(name, out / f"{name}.png")
@@ -42,6 +45,16 @@ def _towns(args: argparse.Namespace) -> None:
 def _drive(args: argparse.Namespace) -> None:
     from pernav.env.episodes import drive_routes
 
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if not 0 <= args.traffic <= MAX_TRAFFIC:
+        raise UsageError(f"--traffic must be in [0, {MAX_TRAFFIC}], got {args.traffic}")
+    if args.gif is not None:  # checked before driving, not after the first route
+        gif = Path(args.gif)
+        if gif.suffix.lower() != ".gif":
+            raise UsageError(f"--gif {args.gif!r} must name a .gif file")
+        if not gif.parent.is_dir():
+            raise UsageError(f"--gif {args.gif!r}: folder {str(gif.parent)!r} does not exist")
     context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
     results = drive_routes(args.town, args.policy, args.user, routes=args.routes, context=context,
                            seed=args.seed, n_traffic=args.traffic, gif=args.gif)
@@ -106,6 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int)
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="run towns and evaluation episodes as Ray tasks (a local cluster when no ADDRESS)")
     p.set_defaults(func=_study)
     return parser
 
@@ -125,7 +140,8 @@ def _study(args: argparse.Namespace) -> None:
         cfg.towns = list(args.towns)
     if args.seed is not None:
         cfg.seed = args.seed
-    results = run_study(cfg, args.out, resume=args.resume, workers=args.workers)
+    results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
+                        ray_address=args.ray or None)
     from pernav.study.report import collision_table
 
     print(collision_table(results))
@@ -137,8 +153,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except (UsageError, TownError, ProfileError, RouteError, ValueError, FileNotFoundError, CheckpointError) as exc:
-        print(f"pernav {args.command}: error: {exc}", file=sys.stderr)
+    except (UsageError, TownError, ProfileError, RouteError, ValueError, OSError, CheckpointError) as exc:
+        # OSError: an output path that cannot be written (a file in the way, no permission, name too long)
+        message = " ".join(str(exc).split()) or type(exc).__name__  # always one line
+        print(f"pernav {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

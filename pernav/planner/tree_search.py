@@ -34,6 +34,7 @@ Example:
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import torch
@@ -47,6 +48,7 @@ from pernav.world.cost import tracking_cost
 __all__ = ["PlanResult", "TreeSearchPlanner"]
 
 TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)
+log = logging.getLogger("pernav.planner")
 
 
 @dataclass
@@ -87,6 +89,7 @@ class TreeSearchPlanner(MPCPlannerBase):
         self.params: TensorDictBase | None = None  # adapted parameters to plan with (None: the model's own)
         self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
         self.last: list[PlanResult] = []
+        self.nonfinite = 0  # decisions where some imagined cost was NaN/Inf
 
     # ----- one imagined step for a batch of nodes ---------------------------------------------------
     def _step(self, history: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -104,6 +107,21 @@ class TreeSearchPlanner(MPCPlannerBase):
         shifted = plan.unfold(0, H, 1)  # [2S + 1, H]: the explore plan shifted by -S..S
         match = (seqs.div(self.playbacks, rounding_mode="floor").unsqueeze(1) == shifted.unsqueeze(0)).all(-1).any(-1)
         return cost - self.bonus * match.to(cost.dtype)
+
+    def _best(self, seqs: torch.Tensor, total: torch.Tensor, plan: torch.Tensor, evaluations: int) -> PlanResult:
+        """The cheapest sequence. Non-finite costs (a model predicting NaN/Inf) never win; if no sequence has
+        a finite cost the planner falls back to the explore plan and counts it in ``nonfinite``."""
+        finite = torch.isfinite(total)
+        if not bool(finite.all()):
+            self.nonfinite += 1
+            log.warning("TreeSearchPlanner: %d non-finite sequence costs", int((~finite).sum()))
+            if not bool(finite.any()):
+                H = seqs.shape[1]
+                explore = plan[self.shift: self.shift + H] * self.playbacks + (1 if self.playbacks == 3 else 0)
+                return PlanResult(explore, float("inf"), evaluations)
+            total = torch.where(finite, total, torch.full_like(total, float("inf")))
+        best = int(torch.argmin(total))
+        return PlanResult(seqs[best], float(total[best]), evaluations)
 
     def _penalties(self, actions: torch.Tensor, mask: torch.Tensor, h: int) -> torch.Tensor:
         instruction = actions.div(self.playbacks, rounding_mode="floor")
@@ -135,8 +153,7 @@ class TreeSearchPlanner(MPCPlannerBase):
                 keep = torch.topk(cost, self.beam, largest=False, sorted=False).indices.sort().values
                 hist, cost, seqs = hist[keep], cost[keep], seqs[keep]
         total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
-        best = int(torch.argmin(total))
-        return PlanResult(seqs[best], float(total[best]), evaluations)
+        return self._best(seqs, total, plan, evaluations)
 
     @torch.no_grad()
     def flat_search(self, observation: torch.Tensor, history: torch.Tensor, goals: torch.Tensor,
@@ -154,8 +171,7 @@ class TreeSearchPlanner(MPCPlannerBase):
             if not self.mask:
                 cost = cost + self._penalties(seqs[:, h], mask, h)
         total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
-        best = int(torch.argmin(total))
-        return PlanResult(seqs[best], float(total[best]), N * H)
+        return self._best(seqs, total, plan, N * H)
 
     # ----- MPCPlannerBase ---------------------------------------------------------------------------
     def planning(self, td: TensorDictBase) -> torch.Tensor:

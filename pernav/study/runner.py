@@ -31,13 +31,14 @@ from typing import Any
 import torch
 from tqdm.auto import tqdm
 
-from pernav.env.torchrl_env import explore_module, oracle_module
+from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import adapt
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.tree_search import TreeSearchPlanner
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
+from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
@@ -83,6 +84,18 @@ class Learner:
     def state(self) -> dict[str, Any]:
         return self.trainer.state_dict()
 
+    def spec(self) -> dict[str, Any]:
+        """The model as an :class:`EpisodeJob` ships it (config + a copy of the state dict)."""
+        return {"config": self.model.config(), "state": {k: v.clone() for k, v in self.model.state_dict().items()}}
+
+
+def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
+    """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
+    if method in ("explore", "oracle"):
+        return method, 7, None, None, method
+    learner = learners[method]
+    return "mpc", learner.n_actions, learner.spec(), adapted[method], method
+
 
 def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7):
     config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21,
@@ -91,7 +104,7 @@ def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_act
     return history_env(town, options, config=config, seed=seed, K=cfg.train.K)
 
 
-def _episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7):
+def episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7):
     return drive(_env(cfg, town, entry, route, seed, n_actions), policy)
 
 
@@ -164,9 +177,14 @@ def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any
 
 
 # ----- the town job -----------------------------------------------------------------------------------
-def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False, position: int = 0) -> dict[str, Any]:
-    """Run Algorithm 1 for every method in ``town``; returns the town's per-entry results."""
+def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False, position: int = 0,
+             executor: Any = None) -> dict[str, Any]:
+    """Run Algorithm 1 for every method in ``town``; returns the town's per-entry results.
+
+    ``executor`` (:mod:`pernav.study.parallel`) runs the evaluation episodes (here, in order, by default).
+    """
     torch.set_num_threads(1)
+    executor = executor or SerialExecutor()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     out = Path(out)
     ckpt_dir = out / "checkpoints" / town
@@ -176,7 +194,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     learners = {name: Learner(name, cfg, town) for name in names}
     state = load_checkpoint(ckpt_dir, learners) if resume else None
     if state is None:
-        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "timing": {}}
+        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "unadapted_losses": {}, "timing": {}}
     routes = list(range(cfg.routes))
     from torchrl.record.loggers import CSVLogger
 
@@ -192,7 +210,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             episodes = []
             for k in range(cfg.offline_trajectories):
                 route = rng.randrange(10)
-                traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
+                traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
                                 explore_module())
                 episodes.append({"route": route, **episode_metrics(traj)})
                 for learner in learners.values():
@@ -203,27 +221,19 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 state["warm"] = {k: v.state() for k, v in learners.items()}
         else:
             tau_route = rng.randrange(10)
-            tau = _episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
+            tau = episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
                            explore_module())
             for learner in learners.values():
                 learner.add(index, tau, tau=True)
             adapted = {name: learner.adapted(learner.buffers.tau(index), cfg) for name, learner in learners.items()}
-            policies: dict[str, tuple[Any, int]] = {"explore": (explore_module(), 7), "oracle": (oracle_module(), 7)}
-            for name, learner in learners.items():
-                policies[name] = (learner.policy(adapted[name]), learner.n_actions)
+            jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
+                               *_policy_spec(method, learners, adapted))
+                    for method in methods if method != "hindsight" for route in routes]
+            metrics = executor.map(run_episode_job, jobs, desc=f"{town} {entry.label} episodes")
             for method in methods:
-                if method == "hindsight":
-                    continue
-                policy, n_actions = policies[method]
-                if method in learners:
-                    learners[method].planner.params = adapted[method]
-                episodes = []
-                for route in tqdm(routes, desc=f"{town} {entry.label} {method}", position=position, leave=False,
-                                  disable=len(routes) < 3):
-                    traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                                    policy, n_actions)
-                    episodes.append({"route": route, **episode_metrics(traj)})
-                record["methods"][method] = _summarize(episodes)
+                if method != "hindsight":
+                    record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
+                                                            if j.policy_name == method])
             # data collection: K rollouts per learner, MPC w.p. 1/2 else explore, into the learner's own D_t
             for name, learner in learners.items():
                 learner.planner.params = adapted[name]
@@ -231,12 +241,13 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                     use_mpc = rng.random() < 0.5
                     route = rng.randrange(10)
                     policy = learner.planner if use_mpc else explore_module()
-                    traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
+                    traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
                                     policy, learner.n_actions)
                     learner.buffers.add(index, traj)  # already in the learner's action space
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
                 state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=True)
+                state["unadapted_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=False)
             for learner in learners.values():
                 learner.trainer.train(cfg.train.updates, meta=learner.meta)
         state["timing"][entry.label] = round(time.perf_counter() - t0, 2)
@@ -247,10 +258,13 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         bar.update(1)
     bar.close()
     if "hindsight" in methods and "hindsight" not in state:
-        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, position)
+        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "planner_nonfinite": learner.planner.nonfinite}
+                   for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
+            "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,
             "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"]}
 
 
@@ -267,7 +281,7 @@ def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
 
 
 def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner: Learner, state: dict[str, Any],
-               routes: list[int], position: int) -> dict[str, Any]:
+               routes: list[int], executor: Any) -> dict[str, Any]:
     """The best meta model in hindsight: Eq. 3 over all of adapt's rounds from the same warm start."""
     hind = Learner("adapt", cfg, town)
     hind.trainer.load_state_dict(state["warm"]["adapt"])
@@ -276,14 +290,14 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     online = [(i, e) for i, e in enumerate(entries) if e.phase == "online"]
     hind.trainer.train(cfg.train.updates * len(online), meta=True)
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
-    for index, entry in tqdm(online, desc=f"{town} hindsight", position=position, leave=False):
-        params = hind.adapted(hind.buffers.tau(index), cfg)
-        policy = hind.policy(params)
-        episodes = []
-        for route in routes:
-            traj = _episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route), policy)
-            episodes.append({"route": route, **episode_metrics(traj)})
-        out["evaluations"][entry.label] = _summarize(episodes)
+    params = {index: hind.adapted(hind.buffers.tau(index), cfg) for index, _ in online}
+    jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
+                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
+            for index, entry in online for route in routes]
+    metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
+    for index, entry in online:
+        out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
+                                                      if j.entry.label == entry.label])
         out["losses"][entry.label] = hind.trainer.round_loss(index, adapted=True)
     return out
 

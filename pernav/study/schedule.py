@@ -54,7 +54,7 @@ class Entry:
         base = spec.pop("user", None)
         values = named_user(base).to_dict() if base else DriverProfile().to_dict()
         values.update(spec)
-        return DriverProfile(**values)
+        return DriverProfile.from_dict(values)  # names an unknown field (of any key type)
 
     def context(self) -> Context:
         return Context(vehicle=self.vehicle, camera=self.camera, visual=self.visual, equipment=self.equipment)
@@ -79,7 +79,7 @@ def _entry(i: int, raw: Any) -> Entry:
         raise ScheduleError(f"{where}: must be a mapping with {', '.join(FIELDS)}, not {type(raw).__name__}")
     label = raw.get("label", f"#{i}")
     where = f"schedule entry {i} ({label!r})"
-    unknown = sorted(set(raw) - set(FIELDS))
+    unknown = sorted(set(raw) - set(FIELDS), key=str)  # keys of any type (YAML: 1, null)
     if unknown:
         raise ScheduleError(f"{where}: unknown field {unknown[0]!r}; allowed: {', '.join(FIELDS)}")
     for key in ("label", "phase", "driver"):
@@ -142,10 +142,14 @@ def parse_schedule(raw: Any) -> list[Entry]:
 def load_schedule(path: str | Path) -> list[Entry]:
     """Read and validate a YAML or JSON schedule file."""
     path = Path(path)
-    if not path.is_file():
+    try:  # a name too long for a path, or with a NUL byte, is no file either
+        is_file = path.is_file()
+    except (OSError, ValueError):
+        is_file = False
+    if not is_file:
         raise ScheduleError(f"schedule file {str(path)!r} does not exist")
-    text = path.read_text()
     try:
+        text = path.read_text()
         if path.suffix.lower() in (".yaml", ".yml"):
             import yaml
 
@@ -153,7 +157,8 @@ def load_schedule(path: str | Path) -> list[Entry]:
         else:
             raw = json.loads(text)
     except Exception as exc:  # noqa: BLE001 - any parse error is reported in one line
-        raise ScheduleError(f"cannot parse schedule file {str(path)!r}: {str(exc).splitlines()[0]}") from None
+        first = (str(exc).splitlines() or [type(exc).__name__])[0]
+        raise ScheduleError(f"cannot parse schedule file {str(path)!r}: {first}") from None
     return parse_schedule(raw)
 
 

@@ -10,6 +10,7 @@ Example (the smoke preset, ~1 minute):
 from __future__ import annotations
 
 import json
+import logging
 import multiprocessing
 import os
 import statistics
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.study.config import METHODS, StudyConfig
+from pernav.study.parallel import make_executor
 from pernav.study.runner import run_town
 
 __all__ = ["OutputError", "check_output", "run_study", "summarize"]
@@ -55,29 +57,42 @@ def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
         raise OutputError(f"output folder {str(out)!r} is not empty and holds no pernav study; choose another --out")
 
 
-def _town_job(args: tuple[StudyConfig, str, str, bool, int]) -> dict[str, Any]:
-    cfg, town, out, resume, position = args
-    return run_town(cfg, town, out, resume=resume, position=position)
+def _town_job(args: tuple[StudyConfig, str, str, bool, int, str]) -> dict[str, Any]:
+    cfg, town, out, resume, position, episodes = args
+    executor = make_executor(ray=True) if episodes == "ray" else None
+    return run_town(cfg, town, out, resume=resume, position=position, executor=executor)
 
 
 def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: int = 1,
-              report: bool = True) -> dict[str, Any]:
-    """Run every town (in ``workers`` processes), then write results.json, report.md and figures/."""
+              report: bool = True, ray: bool = False, ray_address: str | None = None) -> dict[str, Any]:
+    """Run every town, then write results.json, report.md and figures/.
+
+    ``workers > 1``: towns run in parallel processes (or, with fewer towns than workers, one town at a time
+    with its evaluation episodes in parallel). ``ray``: towns and evaluation episodes are Ray tasks on the
+    cluster at ``ray_address`` (a local one with ``workers`` CPUs when None). Results do not depend on
+    where the work ran.
+    """
     cfg.validate()
     out = Path(out)
     check_output(cfg, out, resume)
     out.mkdir(parents=True, exist_ok=True)
     (out / "study.json").write_text(json.dumps(_fingerprint(cfg), indent=1))
     t0 = time.perf_counter()
-    jobs = [(cfg, town, str(out), resume, i) for i, town in enumerate(cfg.towns)]
-    if workers > 1 and len(jobs) > 1:
+    if ray:
+        towns = _run_on_ray(cfg, out, resume, workers, ray_address)
+    elif workers > 1 and len(cfg.towns) >= workers:
+        jobs = [(cfg, town, str(out), resume, i, "serial") for i, town in enumerate(cfg.towns)]
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
             towns = list(pool.map(_town_job, jobs))
     else:
-        towns = [_town_job(job) for job in jobs]
+        executor = make_executor(workers)
+        try:
+            towns = [run_town(cfg, town, out, resume=resume, executor=executor) for town in cfg.towns]
+        finally:
+            executor.close()
     results = assemble(cfg, towns)
-    results["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers,
+    results["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers, "ray": ray,
                          "towns": {t["town"]: t["timing"] for t in towns}}
     tmp = out / ".results.json.tmp"
     tmp.write_text(json.dumps(results, indent=1))
@@ -87,6 +102,24 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
 
         write_report(results, out)
     return results
+
+
+def _run_on_ray(cfg: StudyConfig, out: Path, resume: bool, workers: int, address: str | None) -> list[dict[str, Any]]:
+    try:
+        import ray
+    except ImportError:
+        raise OutputError("--ray needs Ray: pip install 'pernav[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        kwargs = {"address": address} if address else {"num_cpus": max(workers, 1)}
+        ray.init(include_dashboard=False, logging_level=logging.WARNING, log_to_driver=False, **kwargs)
+    try:
+        task = ray.remote(num_cpus=1)(_town_job)
+        refs = [task.remote((cfg, town, str(out), resume, i, "ray")) for i, town in enumerate(cfg.towns)]
+        return ray.get(refs)
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
@@ -115,8 +148,12 @@ def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
             "average_loss_regret": _running_mean(losses),
             "cost_regret": costs,  # adapt - hindsight episodic cost per round
             "average_cost_regret": _running_mean(costs),
+            # does one-shot adaptation help? L-step loss of adapt's model on D_t without / with U(P_t, tau_t)
+            "adaptation": {k: {"unadapted": t["unadapted_losses"].get(k), "adapted": online[k]} for k in online},
         }
-    return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret}
+    diagnostics = {t["town"]: t["diagnostics"] for t in towns}
+    return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret,
+            "diagnostics": diagnostics}
 
 
 def _running_mean(values: list[float]) -> list[float]:

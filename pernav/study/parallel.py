@@ -1,0 +1,144 @@
+"""Where independent work runs: in this process, in a pool of processes, or on a Ray cluster.
+
+An episode is described by an :class:`EpisodeJob` (town, user, route, seed and a policy *spec*: a name, or
+a model's config + state dict + adapted parameters), so it can be shipped anywhere and gives the same
+result everywhere: each worker uses one torch thread and every seed is part of the job.
+
+Example:
+    >>> ex = make_executor(workers=1)
+    >>> ex.map(abs, [-1, 2, -3])
+    [1, 2, 3]
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+__all__ = ["EpisodeJob", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor", "run_episode_job"]
+
+
+def _init_worker() -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)
+
+
+def _bar(items: Iterable[Any], desc: str | None, total: int | None = None) -> Iterable[Any]:
+    from tqdm.auto import tqdm
+
+    return tqdm(items, desc=desc, total=total, leave=False, disable=desc is None)
+
+
+class SerialExecutor:
+    """Runs everything here, in order."""
+
+    workers = 1
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], desc: str | None = None) -> list[Any]:
+        items = list(items)
+        return [fn(x) for x in _bar(items, desc)]
+
+    def close(self) -> None:
+        pass
+
+
+class PoolExecutor:
+    """A pool of ``workers`` spawned processes (kept for the executor's life)."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_init_worker)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], desc: str | None = None) -> list[Any]:
+        items = list(items)
+        return list(_bar(self.pool.map(fn, items), desc, len(items)))
+
+    def close(self) -> None:
+        self.pool.shutdown()
+
+
+class RayExecutor:
+    """Ray tasks (one CPU each) on the cluster ``ray.init`` connected to."""
+
+    def __init__(self) -> None:
+        import ray
+
+        self.ray = ray
+        self.workers = int(ray.cluster_resources().get("CPU", 1))
+        self._remote = ray.remote(num_cpus=1)(_call)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any], desc: str | None = None) -> list[Any]:
+        refs = [self._remote.remote(fn, x) for x in items]
+        return self.ray.get(refs)
+
+    def close(self) -> None:
+        pass
+
+
+def _call(fn: Callable[[Any], Any], item: Any) -> Any:
+    _init_worker()
+    return fn(item)
+
+
+def make_executor(workers: int = 1, ray: bool = False) -> SerialExecutor | PoolExecutor | RayExecutor:
+    """Ray tasks, a process pool (``workers > 1``), or this process."""
+    if ray:
+        return RayExecutor()
+    return PoolExecutor(workers) if workers > 1 else SerialExecutor()
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """One episode to drive; everything it depends on is in here."""
+
+    cfg: Any  # StudyConfig
+    town: str
+    entry: Any  # schedule Entry
+    route: int
+    seed: int
+    policy: str  # explore | oracle | mpc
+    n_actions: int = 7
+    model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
+    params: Any = None  # adapted parameters (TensorDict) or None
+    policy_name: str = ""  # the study method this episode evaluates
+
+
+def make_policy(job: EpisodeJob) -> Any:
+    """The TensorDictModule that drives ``job``."""
+    from pernav.env.torchrl_env import explore_module, oracle_module
+
+    if job.policy == "explore":
+        return explore_module()
+    if job.policy == "oracle":
+        return oracle_module()
+    if job.policy != "mpc" or job.model is None:
+        raise ValueError(f"unknown policy spec {job.policy!r}")
+    from pernav.model.dynamics import DynamicsModel
+    from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    from pernav.planner.tree_search import TreeSearchPlanner
+
+    model = DynamicsModel(**job.model["config"])
+    model.load_state_dict(job.model["state"])
+    p = job.cfg.planner
+    planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)), horizon=p["horizon"],
+                                shift=p["shift"], bonus=p["bonus"],
+                                beam=p.get("beam_speed") if job.n_actions == 21 else None)
+    planner.params = job.params
+    return planner
+
+
+def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
+    """Drive the job's episode; its metrics (with the route)."""
+    from pernav.study.runner import episode
+
+    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, make_policy(job), job.n_actions)
+    from pernav.trainer.collect import episode_metrics
+
+    return {"route": job.route, **episode_metrics(trajectory)}
