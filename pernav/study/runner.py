@@ -261,7 +261,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "planner_nonfinite": learner.planner.nonfinite}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped}
                    for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,

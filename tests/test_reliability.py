@@ -1,0 +1,135 @@
+"""A long study is unbreakable (issue #5): Ray, SIGKILL at any moment, corrupted checkpoints, NaN losses."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+import pernav.trainer.ftml as ftml
+from pernav.cli import main
+from pernav.study import preset, run_study
+
+CMD = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke"]
+ENV = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+
+
+def _without_timing(results: dict) -> dict:
+    return json.loads(json.dumps({k: v for k, v in results.items() if k != "timing"}))
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> dict:
+    """The uninterrupted single-process smoke study."""
+    return _without_timing(run_study(preset("smoke"), tmp_path_factory.mktemp("ref") / "study", report=False))
+
+
+@pytest.mark.slow
+def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "ray"
+    proc = subprocess.run([*CMD, "--out", str(out), "--ray", "--workers", "2"], env=ENV, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    got = json.loads((out / "results.json").read_text())
+    assert got["timing"]["ray"] is True
+    assert _without_timing(got) == reference
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kill_seed", [0, 1, 2])
+def test_sigkill_at_a_random_moment_then_resume_gives_the_same_results(reference, tmp_path, kill_seed):
+    out = tmp_path / "killed"
+    delay = random.Random(kill_seed).uniform(4.0, 25.0)  # mid-round, between rounds or mid-checkpoint
+    proc = subprocess.Popen([*CMD, "--out", str(out)], env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(delay)
+    killed = proc.poll() is None
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    manifest = out / "checkpoints" / "Town1" / "manifest.json"
+    done_before = json.loads(manifest.read_text())["index"] + 1 if manifest.exists() else 0
+    resumed = subprocess.run([*CMD, "--out", str(out), "--resume"], env=ENV, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert _without_timing(json.loads((out / "results.json").read_text())) == reference
+    print(f"killed={killed} after {delay:.1f} s with {done_before} entries checkpointed")
+
+
+@pytest.mark.slow
+def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path, capsys):
+    out = tmp_path / "study"
+    cfg = preset("smoke")
+    cfg.methods = ["explore", "adapt"]
+    run_study(cfg, out, report=False)
+    ckpt = next((out / "checkpoints" / "Town1").glob("entry_*"))
+    state = ckpt / "state.pt"
+    data = bytearray(state.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    state.write_bytes(bytes(data))
+    before = (out / "results.json").read_text()
+    from pernav.study import runner
+
+    cfg_json = json.loads((out / "study.json").read_text())
+    assert cfg_json["methods"] == ["explore", "adapt"]
+    with pytest.raises(runner.CheckpointError, match="state.pt"):
+        runner.load_checkpoint(out / "checkpoints" / "Town1", {})
+    # through the CLI: one line naming the file, exit code 2, results untouched
+    argv = ["study", "--preset", "smoke", "--out", str(out), "--resume"]
+    capsys.readouterr()  # drop the first run's progress bars
+    code = _main_with_methods(argv, ["explore", "adapt"])
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert code == 2 and len(errors) == 1 and "state.pt" in errors[0] and "corrupted" in errors[0]
+    assert (out / "results.json").read_text() == before
+    (out / "checkpoints" / "Town1" / "manifest.json").write_text("{not json")
+    assert _main_with_methods(argv, ["explore", "adapt"]) == 2
+    assert "manifest.json" in capsys.readouterr().err
+
+
+def _main_with_methods(argv: list[str], methods: list[str]) -> int:
+    """``pernav study`` with the smoke preset restricted to ``methods`` (as the folder's study was run)."""
+    import pernav.study.config as config
+
+    original = config.PRESETS["smoke"]
+
+    def smoke():
+        cfg = original()
+        cfg.methods = methods
+        return cfg
+
+    config.PRESETS["smoke"] = smoke
+    try:
+        return main(argv)
+    finally:
+        config.PRESETS["smoke"] = original
+
+
+@pytest.mark.slow
+def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplog):
+    real = ftml.multistep_loss
+    calls = {"n": 0}
+
+    def sometimes_nan(*args, **kwargs):
+        calls["n"] += 1
+        loss = real(*args, **kwargs)
+        return loss * torch.tensor(float("nan")) if calls["n"] in (5, 30) else loss
+
+    monkeypatch.setattr(ftml, "multistep_loss", sometimes_nan)
+    cfg = preset("smoke")
+    cfg.methods = ["explore", "sysid", "adapt"]
+    results = run_study(cfg, tmp_path / "nan", report=False)
+    skipped = sum(d["skipped_updates"] for d in results["diagnostics"]["Town1"].values())
+    assert skipped >= 2  # the 7-action warm start (shared by sysid and adapt) and the 21-action one
+    assert "non-finite model loss" in caplog.text
+    for it in results["iterations"]:
+        for figures in it["towns"]["Town1"].values():
+            assert figures["tracking_cost"] == figures["tracking_cost"]  # not NaN
+    for name in ("sysid", "adapt"):
+        params = torch.load(Path(tmp_path / "nan" / "checkpoints" / "Town1").glob("entry_*").__next__() / "state.pt",
+                            weights_only=False)["learners"][name]["model"]
+        assert all(torch.isfinite(v).all() for v in params.values())
