@@ -74,12 +74,16 @@ def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
         return named_user(str(spec)), None
     if isinstance(spec, (str, Path)):
         path = Path(spec)
-        if not path.suffix and not path.exists():
+        try:  # a name too long for a path, or with a NUL byte, is no file either
+            exists, is_file = path.exists(), path.is_file()
+        except (OSError, ValueError):
+            exists = is_file = False
+        if not path.suffix and not exists:
             raise ProfileError(f"unknown user {str(spec)!r}; choose one of {', '.join(NAMED_USERS)} or a profile file")
-        if not path.is_file():
-            raise ProfileError(f"user file {str(path)!r} does not exist")
-        text = path.read_text()
+        if not is_file:
+            raise ProfileError(f"user file {str(path)!r} does not exist or is not a file")
         try:
+            text = path.read_text()
             if path.suffix.lower() in (".yaml", ".yml"):
                 import yaml
 
@@ -87,14 +91,15 @@ def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
             else:
                 spec = json.loads(text)
         except Exception as exc:  # noqa: BLE001 - any parse error is the user's file, reported in one line
-            raise ProfileError(f"cannot parse user file {str(path)!r}: {str(exc).splitlines()[0]}") from None
+            first = (str(exc).splitlines() or [type(exc).__name__])[0]
+            raise ProfileError(f"cannot read user file {str(path)!r}: {first}") from None
     if not isinstance(spec, dict):
         raise ProfileError(f"a user must be a name, a mapping or a file, not {type(spec).__name__}")
     spec = dict(spec)
     base = spec.pop("user", None)
     profile = named_user(base).to_dict() if base is not None else DriverProfile().to_dict()
     context = {k: spec.pop(k) for k in list(spec) if k in CONTEXT_CHOICES}
-    unknown = sorted(set(spec) - set(PROFILE_RANGES))
+    unknown = sorted(set(spec) - set(PROFILE_RANGES), key=str)  # keys of any type (YAML: 1, null)
     if unknown:
         allowed = ", ".join(["user", *PROFILE_RANGES, *CONTEXT_CHOICES])
         raise ProfileError(f"unknown profile field {unknown[0]!r}; allowed: {allowed}")
@@ -179,6 +184,11 @@ class NavigationEnv(gym.Env):
                 self.context = ctx
         if "context" in options:
             ctx = options["context"]
+            if not isinstance(ctx, (Context, dict)):
+                raise ProfileError(f"reset option 'context' must be a Context or a mapping, not {type(ctx).__name__}")
+            unknown = sorted(set(ctx) - set(CONTEXT_CHOICES), key=str) if isinstance(ctx, dict) else []
+            if unknown:
+                raise ProfileError(f"unknown context field {unknown[0]!r}; allowed: {', '.join(CONTEXT_CHOICES)}")
             self.context = ctx if isinstance(ctx, Context) else Context(**ctx)
         self.driver = resolve(self.profile, self.context)
         self._oracle = oracle_policy(self.driver)

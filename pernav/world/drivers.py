@@ -14,6 +14,9 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import math
+import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -71,11 +74,16 @@ class DriverProfile:
     def __post_init__(self) -> None:
         for name, (lo, hi, meaning) in PROFILE_RANGES.items():
             value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
+            # any real number (numpy scalars too), not bool; huge ints overflow to inf (out of range)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
                 raise ProfileError(f"{name}={value!r} must be a number in [{lo}, {hi}] ({meaning})")
-            if not np.isfinite(value) or not lo <= value <= hi:
+            try:
+                number = float(value)
+            except OverflowError:
+                number = math.inf
+            if not math.isfinite(number) or not lo <= number <= hi:
                 raise ProfileError(f"{name}={value!r} is out of range [{lo}, {hi}] ({meaning})")
-            object.__setattr__(self, name, float(value))
+            object.__setattr__(self, name, number)
 
     def to_dict(self) -> dict[str, float]:
         return dataclasses.asdict(self)
@@ -83,7 +91,9 @@ class DriverProfile:
     @classmethod
     def from_dict(cls, data: dict) -> DriverProfile:
         """Build from a mapping; unknown keys are an error naming the key and the allowed ones."""
-        unknown = sorted(set(data) - set(PROFILE_RANGES))
+        if not isinstance(data, Mapping):
+            raise ProfileError(f"a profile must be a mapping of {', '.join(PROFILE_RANGES)}, not {type(data).__name__}")
+        unknown = sorted(set(data) - set(PROFILE_RANGES), key=str)  # keys of any type (YAML: 1, null)
         if unknown:
             raise ProfileError(f"unknown profile field {unknown[0]!r}; allowed: {', '.join(PROFILE_RANGES)}")
         return cls(**data)
@@ -227,7 +237,7 @@ AVERAGE_CONTEXT = Context()
 
 def named_user(name: str) -> DriverProfile:
     """One of ``user1`` … ``user7``."""
-    if name not in NAMED_USERS:
+    if not isinstance(name, str) or name not in NAMED_USERS:
         raise ProfileError(f"unknown user {name!r}; choose one of {', '.join(NAMED_USERS)} or a profile file")
     return NAMED_USERS[name]
 
