@@ -41,7 +41,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.model.dynamics import X, Y
+from pernav.model.dynamics import GX, GY, X, Y
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 
@@ -72,13 +72,21 @@ class TreeSearchPlanner(MPCPlannerBase):
         mask: prune forbidden actions from the tree instead of penalizing them.
         beam: keep only this many cheapest nodes per level (``None``: exhaustive).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
+        goal_source: ``"state"`` (default): each imagined position is scored against the goal waypoint of
+            the previous imagined state, which the model predicts like every state entry — exactly the env's
+            cost ``||pos_{t+1} - g_t||^2`` with the env's speed-dependent goal selection; ``"route"``: against
+            ``plan_goals`` (route points at the current speed — biased against slowing down for a turn).
     """
 
     def __init__(self, env, horizon: int = 5, shift: int = 2, bonus: float = 20.0, penalty: float = 1e3,
-                 mask: bool = True, beam: int | None = None, playbacks: int | None = None) -> None:
+                 mask: bool = True, beam: int | None = None, playbacks: int | None = None,
+                 goal_source: str = "state") -> None:
         super().__init__(env, action_key="action")
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
+        if goal_source not in ("state", "route"):
+            raise ValueError(f"goal_source must be 'state' or 'route', got {goal_source!r}")
+        self.goal_source = goal_source
         if beam is not None and beam < 1:
             raise ValueError(f"beam must be >= 1 or None, got {beam}")
         self.model = env.dynamics
@@ -97,6 +105,10 @@ class TreeSearchPlanner(MPCPlannerBase):
         # copies, done/spec bookkeeping and a reward the search does not use (~40 % of a masked decision).
         next_state = self.model(history, action)
         return next_state, self.model.next_window(history, action, next_state)
+
+    def _goal(self, state_goal: torch.Tensor, route_goals: torch.Tensor, h: int) -> torch.Tensor:
+        """The goal the position after step ``h`` is scored against (see ``goal_source``)."""
+        return state_goal if self.goal_source == "state" else route_goals[h]
 
     def _allowed(self, mask: torch.Tensor, h: int) -> torch.Tensor:
         return mask[h].nonzero().squeeze(-1) if self.mask else torch.arange(self.n_actions)
@@ -135,6 +147,7 @@ class TreeSearchPlanner(MPCPlannerBase):
         """Level-by-level search from one root (unbatched tensors)."""
         H = min(self.horizon, goals.shape[0])
         hist = history.unsqueeze(0)  # the model reads the state from the window's newest row
+        goal = hist[:, -1, [GX, GY]]  # the goal waypoint of each node's state
         seqs = torch.zeros(1, 0, dtype=torch.long)
         cost = torch.zeros(1)
         evaluations = 0
@@ -145,13 +158,14 @@ class TreeSearchPlanner(MPCPlannerBase):
             actions = allowed.repeat(n)
             obs, hist = self._step(hist[parent], actions)
             evaluations += actions.shape[0]
-            cost = cost[parent] + tracking_cost(obs[:, [X, Y]], goals[h])
+            cost = cost[parent] + tracking_cost(obs[:, [X, Y]], self._goal(goal[parent], goals, h))
+            goal = obs[:, [GX, GY]]
             if not self.mask:
                 cost = cost + self._penalties(actions, mask, h)
             seqs = torch.cat([seqs[parent], actions.unsqueeze(1)], dim=1)
             if self.beam is not None and seqs.shape[0] > self.beam and h + 1 < H:
                 keep = torch.topk(cost, self.beam, largest=False, sorted=False).indices.sort().values
-                hist, cost, seqs = hist[keep], cost[keep], seqs[keep]
+                hist, cost, seqs, goal = hist[keep], cost[keep], seqs[keep], goal[keep]
         total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
         return self._best(seqs, total, plan, evaluations)
 
@@ -164,10 +178,12 @@ class TreeSearchPlanner(MPCPlannerBase):
         seqs = torch.cartesian_prod(*sets).reshape(-1, H)
         N = seqs.shape[0]
         hist = history.expand(N, *history.shape)
+        goal = hist[:, -1, [GX, GY]]
         cost = torch.zeros(N)
         for h in range(H):
             obs, hist = self._step(hist, seqs[:, h])
-            cost = cost + tracking_cost(obs[:, [X, Y]], goals[h])
+            cost = cost + tracking_cost(obs[:, [X, Y]], self._goal(goal, goals, h))
+            goal = obs[:, [GX, GY]]
             if not self.mask:
                 cost = cost + self._penalties(seqs[:, h], mask, h)
         total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
