@@ -35,6 +35,7 @@ Example:
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass
 
 import torch
@@ -72,6 +73,8 @@ class TreeSearchPlanner(MPCPlannerBase):
         mask: prune forbidden actions from the tree instead of penalizing them.
         beam: keep only this many cheapest nodes per level (``None``: exhaustive).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
+        shift_decay: the bonus of a plan shifted by ``k`` steps is ``bonus * (1 - shift_decay * |k|)``, so a
+            time shift is chosen only when the model predicts it pays (ties go to the explore timing).
         goal_source: ``"state"`` (default): each imagined position is scored against the goal waypoint of
             the previous imagined state, which the model predicts like every state entry — exactly the env's
             cost ``||pos_{t+1} - g_t||^2`` with the env's speed-dependent goal selection; ``"route"``: against
@@ -80,13 +83,14 @@ class TreeSearchPlanner(MPCPlannerBase):
 
     def __init__(self, env, horizon: int = 5, shift: int = 2, bonus: float = 20.0, penalty: float = 1e3,
                  mask: bool = True, beam: int | None = None, playbacks: int | None = None,
-                 goal_source: str = "state") -> None:
+                 goal_source: str = "state", shift_decay: float = 0.05) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
         if goal_source not in ("state", "route"):
             raise ValueError(f"goal_source must be 'state' or 'route', got {goal_source!r}")
         self.goal_source = goal_source
+        self.shift_decay = float(shift_decay)
         if beam is not None and beam < 1:
             raise ValueError(f"beam must be >= 1 or None, got {beam}")
         self.model = env.dynamics
@@ -98,6 +102,7 @@ class TreeSearchPlanner(MPCPlannerBase):
         self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
         self.last: list[PlanResult] = []
         self.nonfinite = 0  # decisions where some imagined cost was NaN/Inf
+        self.planning_s = 0.0  # wall time spent planning (profiling)
 
     # ----- one imagined step for a batch of nodes ---------------------------------------------------
     def _step(self, history: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -117,8 +122,10 @@ class TreeSearchPlanner(MPCPlannerBase):
         """Add the explore-match bonus to complete sequences ``[N, H]``."""
         H = seqs.shape[1]
         shifted = plan.unfold(0, H, 1)  # [2S + 1, H]: the explore plan shifted by -S..S
-        match = (seqs.div(self.playbacks, rounding_mode="floor").unsqueeze(1) == shifted.unsqueeze(0)).all(-1).any(-1)
-        return cost - self.bonus * match.to(cost.dtype)
+        match = (seqs.div(self.playbacks, rounding_mode="floor").unsqueeze(1) == shifted.unsqueeze(0)).all(-1)
+        k = torch.arange(shifted.shape[0], dtype=cost.dtype) - (shifted.shape[0] - 1) / 2
+        weight = 1.0 - self.shift_decay * k.abs()  # a shift must buy its cost: explore itself wins ties
+        return cost - self.bonus * (match.to(cost.dtype) * weight).amax(-1)
 
     def _best(self, seqs: torch.Tensor, total: torch.Tensor, plan: torch.Tensor, evaluations: int) -> PlanResult:
         """The cheapest sequence. Non-finite costs (a model predicting NaN/Inf) never win; if no sequence has
@@ -195,6 +202,7 @@ class TreeSearchPlanner(MPCPlannerBase):
         if missing:
             raise KeyError(f"TreeSearchPlanner needs {missing} in the tensordict (the navigation env writes "
                            "plan_goals/explore_plan/action_mask; wrap it with HistoryWindow for history)")
+        t0 = time.perf_counter()
         flat = td.reshape(-1)
         actions, self.last = [], []
         with using(self.model, self.params):
@@ -204,4 +212,5 @@ class TreeSearchPlanner(MPCPlannerBase):
                                      row["explore_plan"].long(), row["action_mask"].bool())
                 self.last.append(result)
                 actions.append(result.actions[0])
+        self.planning_s += time.perf_counter() - t0
         return torch.stack(actions).reshape(td.shape)

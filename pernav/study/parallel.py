@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -137,8 +138,10 @@ def make_policy(job: EpisodeJob) -> Any:
 def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
     """Drive the job's episode; its metrics (with the route)."""
     from pernav.study.runner import episode
-
-    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, make_policy(job), job.n_actions)
     from pernav.trainer.collect import episode_metrics
 
-    return {"route": job.route, **episode_metrics(trajectory)}
+    t0 = time.perf_counter()
+    policy = make_policy(job)
+    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions)
+    timing = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
+    return {"route": job.route, **episode_metrics(trajectory), "_timing": timing}

@@ -120,6 +120,28 @@ def _summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def _strip_timing(metrics: list[dict[str, Any]], profile: dict[str, float], prefix: str) -> list[dict[str, Any]]:
+    """Move the episodes' wall-time figures into ``profile`` (they must not enter the results)."""
+    for m in metrics:
+        t = m.pop("_timing", {})
+        profile[f"{prefix}_episodes_s"] = profile.get(f"{prefix}_episodes_s", 0.0) + t.get("episode_s", 0.0)
+        profile[f"{prefix}_planning_s"] = profile.get(f"{prefix}_planning_s", 0.0) + t.get("planning_s", 0.0)
+    return metrics
+
+
+class _Timer:
+    """``with _Timer(profile, "training_s"):`` adds the block's wall time to ``profile``."""
+
+    def __init__(self, profile: dict[str, float], key: str) -> None:
+        self.profile, self.key = profile, key
+
+    def __enter__(self) -> None:
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc: Any) -> None:
+        self.profile[self.key] = self.profile.get(self.key, 0.0) + time.perf_counter() - self.t0
+
+
 # ----- checkpoints ------------------------------------------------------------------------------------
 def _sha256(path: Path) -> str:
     h = hashlib.sha256()
@@ -194,7 +216,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     learners = {name: Learner(name, cfg, town) for name in names}
     state = load_checkpoint(ckpt_dir, learners) if resume else None
     if state is None:
-        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "unadapted_losses": {}, "timing": {}}
+        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "unadapted_losses": {}, "timing": {},
+                 "profile": {}}
+    profile = state["profile"]
     routes = list(range(cfg.routes))
     from torchrl.record.loggers import CSVLogger
 
@@ -208,6 +232,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         record: dict[str, Any] = {"label": entry.label, "phase": entry.phase, "methods": {}}
         if entry.phase == "offline":
             episodes = []
+            timer = _Timer(profile, "collection_s")
+            timer.__enter__()
             for k in range(cfg.offline_trajectories):
                 route = rng.randrange(10)
                 traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
@@ -215,26 +241,35 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 episodes.append({"route": route, **episode_metrics(traj)})
                 for learner in learners.values():
                     learner.add(index, traj, tau=(k == 0))
+            timer.__exit__()
             record["methods"]["explore"] = _summarize(episodes)
             if index + 1 == first_online:
-                _warm_start(cfg, learners)
+                with _Timer(profile, "training_s"):
+                    _warm_start(cfg, learners)
                 state["warm"] = {k: v.state() for k, v in learners.items()}
         else:
             tau_route = rng.randrange(10)
-            tau = episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
-                           explore_module())
+            with _Timer(profile, "collection_s"):
+                tau = episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
+                              explore_module())
             for learner in learners.values():
                 learner.add(index, tau, tau=True)
-            adapted = {name: learner.adapted(learner.buffers.tau(index), cfg) for name, learner in learners.items()}
+            with _Timer(profile, "adaptation_s"):
+                adapted = {name: learner.adapted(learner.buffers.tau(index), cfg) for name, learner in learners.items()}
             jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                                *_policy_spec(method, learners, adapted))
                     for method in methods if method != "hindsight" for route in routes]
-            metrics = executor.map(run_episode_job, jobs, desc=f"{town} {entry.label} episodes")
+            with _Timer(profile, "evaluation_s"):
+                metrics = executor.map(run_episode_job, jobs, desc=f"{town} {entry.label} episodes")
+            _strip_timing(metrics, profile, "evaluation")
             for method in methods:
                 if method != "hindsight":
                     record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
                                                             if j.policy_name == method])
             # data collection: K rollouts per learner, MPC w.p. 1/2 else explore, into the learner's own D_t
+            collect = _Timer(profile, "collection_s")
+            collect.__enter__()
+            planning_before = sum(learner.planner.planning_s for learner in learners.values())
             for name, learner in learners.items():
                 learner.planner.params = adapted[name]
                 for k in range(cfg.rollouts):
@@ -244,17 +279,22 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                     traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
                                     policy, learner.n_actions)
                     learner.buffers.add(index, traj)  # already in the learner's action space
+            collect.__exit__()
+            profile["collection_planning_s"] = profile.get("collection_planning_s", 0.0) + sum(
+                learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
                 state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=True)
                 state["unadapted_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=False)
-            for learner in learners.values():
-                learner.trainer.train(cfg.train.updates, meta=learner.meta)
+            with _Timer(profile, "training_s"):
+                for learner in learners.values():
+                    learner.trainer.train(cfg.train.updates, meta=learner.meta)
         state["timing"][entry.label] = round(time.perf_counter() - t0, 2)
         state["results"].append(record)
         _log(logger, index, record)
         state["next"] = index + 1
-        save_checkpoint(ckpt_dir, index, state, learners)
+        with _Timer(profile, "checkpoint_s"):
+            save_checkpoint(ckpt_dir, index, state, learners)
         bar.update(1)
     bar.close()
     if "hindsight" in methods and "hindsight" not in state:
@@ -265,7 +305,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                    for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,
-            "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"]}
+            "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
+            "profile": {k: round(v, 2) for k, v in state["profile"].items()}}
 
 
 def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
@@ -288,13 +329,16 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     hind.buffers = adapt_learner.buffers
     hind.trainer.buffers = adapt_learner.buffers
     online = [(i, e) for i, e in enumerate(entries) if e.phase == "online"]
-    hind.trainer.train(cfg.train.updates * len(online), meta=True)
+    with _Timer(state["profile"], "hindsight_training_s"):
+        hind.trainer.train(cfg.train.updates * len(online), meta=True)
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
     params = {index: hind.adapted(hind.buffers.tau(index), cfg) for index, _ in online}
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                        "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online for route in routes]
-    metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
+    with _Timer(state["profile"], "hindsight_evaluation_s"):
+        metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
+    _strip_timing(metrics, state["profile"], "hindsight")
     for index, entry in online:
         out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
                                                       if j.entry.label == entry.label])

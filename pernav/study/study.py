@@ -93,7 +93,8 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
             executor.close()
     results = assemble(cfg, towns)
     results["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers, "ray": ray,
-                         "towns": {t["town"]: t["timing"] for t in towns}}
+                         "towns": {t["town"]: t["timing"] for t in towns},
+                         "profile": {t["town"]: t["profile"] for t in towns}}
     tmp = out / ".results.json.tmp"
     tmp.write_text(json.dumps(results, indent=1))
     os.replace(tmp, out / "results.json")

@@ -435,7 +435,10 @@ class DriverCar(PathCar, Vehicle):
 
     def commit(self, node: str, now: float, late: bool = False) -> None:
         """Choose the branch at ``node`` from what the driver has heard, and extend the path."""
-        follow_prep, pick = self.world.guess_rng.random(2)  # two draws per decision, always
+        # two draws per decision, always; a late re-commit (swerve) is the same decision made again
+        # on a turn instruction and draws nothing, so that the k-th decision of two policies driving
+        # the same seed faces the same draws whether or not one of them made the driver swerve
+        follow_prep, pick = (0.0, 0.0) if late else self.world.guess_rng.random(2)
         options = self._options(node)
         turn = self.active(now, (1, 2))
         prep = self.active(now, (3, 4))
