@@ -83,7 +83,7 @@ class TreeSearchPlanner(MPCPlannerBase):
 
     def __init__(self, env, horizon: int = 5, shift: int = 2, bonus: float = 20.0, penalty: float = 1e3,
                  mask: bool = True, beam: int | None = None, playbacks: int | None = None,
-                 goal_source: str = "state", shift_decay: float = 0.05) -> None:
+                 goal_source: str = "state", shift_decay: float = 0.25) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1:
             raise ValueError(f"horizon must be >= 1, got {horizon}")
