@@ -36,6 +36,7 @@ def _model(seed: int, n_actions: int = 7, K: int = 5, hidden: tuple[int, ...] = 
 
 def _planner(model: DynamicsModel, **kwargs) -> TreeSearchPlanner:
     kwargs.setdefault("goal_source", "route")  # the goals these tests control (``plan_goals``)
+    kwargs.setdefault("shift_decay", 0.0)  # the brute force below gives every shift the same bonus
     return TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)), **kwargs)
 
 
@@ -53,7 +54,8 @@ def _root(n_actions: int, H: int, shift: int, seed: int, K: int = 5):
 
 
 def _brute_force(model: DynamicsModel, history, goals, plan, mask, *, bonus: float, penalty: float,
-                 use_mask: bool, playbacks: int, goal_source: str = "route") -> tuple[torch.Tensor, float]:
+                 use_mask: bool, playbacks: int, goal_source: str = "route",
+                 shift_decay: float = 0.0) -> tuple[torch.Tensor, float]:
     """Every sequence of allowed actions rolled out with ``model`` and ``model.next_window``; best (seq, cost)."""
     H, A = goals.shape[0], model.n_actions
     sets = [[a for a in range(A) if bool(mask[h, a]) or not use_mask] for h in range(H)]
@@ -72,29 +74,33 @@ def _brute_force(model: DynamicsModel, history, goals, plan, mask, *, bonus: flo
                 cost += penalty * ((a // playbacks >= 1) & ~mask[h, a]).double()
             hist = model.next_window(hist, a, state)
     windows = torch.stack([plan[k:k + H] for k in range(plan.shape[0] - H + 1)])
-    matches = ((seqs // playbacks)[:, None, :] == windows[None]).all(-1).any(-1)
-    cost -= bonus * matches.double()
+    matches = ((seqs // playbacks)[:, None, :] == windows[None]).all(-1).double()  # [N, 2S + 1]
+    S = (windows.shape[0] - 1) // 2
+    weights = torch.tensor([1.0 - shift_decay * abs(k - S) for k in range(windows.shape[0])], dtype=torch.float64)
+    cost -= bonus * (matches * weights).max(-1).values
     best = int(torch.argmin(cost))
     return seqs[best], float(cost[best])
 
 
 # ----- 1. planner == brute force ------------------------------------------------------------------------
-@pytest.mark.parametrize("goal_source", ["route", "state"])
+@pytest.mark.parametrize("goal_source,shift_decay", [("route", 0.0), ("state", 0.0), ("state", 0.25)])
 @pytest.mark.parametrize("n_actions,H,use_mask", [(7, 4, True), (7, 4, False), (7, 5, True),
                                                   (21, 3, True), (21, 3, False)])
-def test_planner_equals_brute_force(n_actions: int, H: int, use_mask: bool, goal_source: str) -> None:
+def test_planner_equals_brute_force(n_actions: int, H: int, use_mask: bool, goal_source: str,
+                                    shift_decay: float) -> None:
     playbacks = 3 if n_actions == 21 else 1
     shift, bonus, penalty = 2, 0.5, 2.0  # small bonus/penalty so that both change the optimum sometimes
     for seed in range(3):
         model = _model(seed, n_actions=n_actions)
         planner = _planner(model, horizon=H, shift=shift, bonus=bonus, penalty=penalty, mask=use_mask,
-                           goal_source=goal_source)
+                           goal_source=goal_source, shift_decay=shift_decay)
         assert planner.playbacks == playbacks
         for problem in range(2):
             obs, hist, goals, plan, mask = _root(n_actions, H, shift, seed=100 * seed + problem)
             result = planner.search(obs, hist, goals, plan, mask)
             seq, cost = _brute_force(model, hist, goals, plan, mask, bonus=bonus, penalty=penalty,
-                                     use_mask=use_mask, playbacks=playbacks, goal_source=goal_source)
+                                     use_mask=use_mask, playbacks=playbacks, goal_source=goal_source,
+                                     shift_decay=shift_decay)
             assert int(result.actions[0]) == int(seq[0])
             assert torch.equal(result.actions, seq)
             assert result.cost == pytest.approx(cost, rel=1e-5, abs=1e-4)
