@@ -118,8 +118,12 @@ def _headline(results: dict[str, Any]) -> list[str]:
                        "online rounds after the first.")
         if "oracle" in s and "adapt" in s:
             gap = ex["tracking_cost_mean"] - s["oracle"]["tracking_cost_mean"]
-            closed = (ex["tracking_cost_mean"] - s["adapt"]["tracking_cost_mean"]) / gap if gap > 0 else float("nan")
-            out.append(f"- {town}: explore→oracle cost gap {gap:.0f}; adapt closes {100 * closed:.0f} % of it.")
+            if gap > 0.05 * ex["tracking_cost_mean"]:
+                closed = (ex["tracking_cost_mean"] - s["adapt"]["tracking_cost_mean"]) / gap
+                out.append(f"- {town}: explore→oracle cost gap {gap:.0f}; adapt closes {100 * closed:.0f} % of it.")
+            else:
+                out.append(f"- {town}: explore→oracle cost gap {gap:.0f} (under 5 % of explore's cost): too small to "
+                           "measure how much of it adapt closes.")
     return out
 
 
