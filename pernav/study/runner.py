@@ -18,6 +18,7 @@ job, so a town's results do not depend on which process or worker runs it.
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import logging
@@ -246,7 +247,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             if index + 1 == first_online:
                 with _Timer(profile, "training_s"):
                     _warm_start(cfg, learners)
-                state["warm"] = {k: v.state() for k, v in learners.items()}
+                state["warm"] = copy.deepcopy({k: v.state() for k, v in learners.items()})  # not live tensors
         else:
             tau_route = rng.randrange(10)
             with _Timer(profile, "collection_s"):
