@@ -28,6 +28,7 @@ Example:
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from dataclasses import asdict, dataclass, field
@@ -158,6 +159,8 @@ class FTMLTrainer:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        # Optimizer.load_state_dict keeps the given moment tensors: copy them, or two trainers loaded from one
+        # state (sysid and adapt after the shared warm start) would update the same Adam moments.
+        self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         self.generator.set_state(state["generator"])
         self.skipped = int(state["skipped"])
