@@ -150,3 +150,28 @@ def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, cap
     assert "different study" in capsys.readouterr().err
     assert (out / "results.json").read_text() == "precious"
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "study.json"]
+
+
+def test_trainers_loaded_from_one_state_share_no_tensors():
+    import torch
+    from tensordict import TensorDict
+
+    from pernav.model import DynamicsModel
+    from pernav.trainer.buffers import RoundBuffers
+    from pernav.trainer.ftml import FTMLTrainer, TrainConfig
+
+    torch.manual_seed(0)
+    buffers = RoundBuffers(L=3, seed=0)
+    T = 12
+    buffers.add(0, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
+                               "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]))
+    cfg = TrainConfig(batch=4, L=3, hidden=[8])
+    a = FTMLTrainer(DynamicsModel(hidden=(8,)), buffers, cfg, seed=0)
+    b = FTMLTrainer(DynamicsModel(hidden=(8,)), buffers, cfg, seed=0)
+    a.plain_update()
+    b.load_state_dict(a.state_dict())
+    moments = [s["exp_avg"].clone() for s in a.optimizer.state.values()]
+    params = [p.detach().clone() for p in a.model.parameters()]
+    b.plain_update()
+    assert all(torch.equal(m, s["exp_avg"]) for m, s in zip(moments, a.optimizer.state.values(), strict=True))
+    assert all(torch.equal(p, q) for p, q in zip(params, a.model.parameters(), strict=True))
