@@ -44,7 +44,7 @@ def plot_costs(results: dict[str, Any], town: str, path: Path) -> None:
     ax.set_xlabel("online round")
     ax.set_ylabel("avg. episodic cost so far")
     ax.set_title(f"{town}: running-average tracking cost")
-    ax.legend(fontsize=7, ncol=3)
+    ax.legend(fontsize=7, ncol=len(methods), loc="upper center", bbox_to_anchor=(0.5, -0.2), frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
