@@ -17,7 +17,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +36,7 @@ from pernav.world.drivers import (
     named_user,
     resolve,
 )
+from pernav.world.files import DataFileError, is_file, read_data_file
 from pernav.world.routing import Route, RouteError, plan_route
 from pernav.world.simulation import N_INSTRUCTIONS, PLAYBACK, World
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
@@ -75,24 +75,17 @@ def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
     if isinstance(spec, (str, Path)):
         path = Path(spec)
         try:  # a name too long for a path, or with a NUL byte, is no file either
-            exists, is_file = path.exists(), path.is_file()
+            exists = path.exists()
         except (OSError, ValueError):
-            exists = is_file = False
+            exists = False
         if not path.suffix and not exists:
             raise ProfileError(f"unknown user {str(spec)!r}; choose one of {', '.join(NAMED_USERS)} or a profile file")
-        if not is_file:
+        if not is_file(path):
             raise ProfileError(f"user file {str(path)!r} does not exist or is not a file")
         try:
-            text = path.read_text()
-            if path.suffix.lower() in (".yaml", ".yml"):
-                import yaml
-
-                spec = yaml.safe_load(text)
-            else:
-                spec = json.loads(text)
-        except Exception as exc:  # noqa: BLE001 - any parse error is the user's file, reported in one line
-            first = (str(exc).splitlines() or [type(exc).__name__])[0]
-            raise ProfileError(f"cannot read user file {str(path)!r}: {first}") from None
+            spec = read_data_file(path)
+        except DataFileError as exc:
+            raise ProfileError(f"cannot read user file {str(path)!r}: {exc}") from None
     if not isinstance(spec, dict):
         raise ProfileError(f"a user must be a name, a mapping or a file, not {type(spec).__name__}")
     spec = dict(spec)

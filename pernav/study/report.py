@@ -7,7 +7,7 @@ from typing import Any
 
 from pernav.study.config import METHODS
 
-__all__ = ["collision_table", "write_report"]
+__all__ = ["collision_table", "running_mean", "write_report"]
 
 COLORS = {"explore": "#7f7f7f", "sysid": "#1f77b4", "adapt": "#d62728", "adapt_speed": "#ff7f0e",
           "hindsight": "#2ca02c", "oracle": "#9467bd"}
@@ -17,7 +17,8 @@ def _online(results: dict[str, Any], town: str) -> list[dict[str, Any]]:
     return [it for it in results["iterations"] if it["phase"] == "online" and town in it["towns"]]
 
 
-def _running(values: list[float]) -> list[float]:
+def running_mean(values: list[float]) -> list[float]:
+    """The average of the values up to each position (the paper's "average upon the current iteration")."""
     out, total = [], 0.0
     for i, v in enumerate(values, 1):
         total += v
@@ -37,7 +38,7 @@ def plot_costs(results: dict[str, Any], town: str, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(max(6, 1.1 * len(rounds) + 2), 3.6))
     width = 0.8 / max(len(methods), 1)
     for j, m in enumerate(methods):
-        values = _running([it["towns"][town][m]["tracking_cost"] for it in rounds])
+        values = running_mean([it["towns"][town][m]["tracking_cost"] for it in rounds])
         ax.bar([i + (j - (len(methods) - 1) / 2) * width for i in range(len(rounds))], values, width,
                label=m, color=COLORS.get(m))
     ax.set_xticks(range(len(rounds)), [it["label"].replace("Online ", "") for it in rounds])

@@ -67,10 +67,6 @@ class Learner:
                                          shift=p["shift"], bonus=p["bonus"], beam=beam)
         self.meta = name != "sysid"
 
-    def policy(self, params: Any) -> TreeSearchPlanner:
-        self.planner.params = params
-        return self.planner
-
     def adapted(self, tau: Any, cfg: StudyConfig) -> Any:
         if not self.meta:
             return None
@@ -233,16 +229,14 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         record: dict[str, Any] = {"label": entry.label, "phase": entry.phase, "methods": {}}
         if entry.phase == "offline":
             episodes = []
-            timer = _Timer(profile, "collection_s")
-            timer.__enter__()
-            for k in range(cfg.offline_trajectories):
-                route = rng.randrange(10)
-                traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
-                                explore_module())
-                episodes.append({"route": route, **episode_metrics(traj)})
-                for learner in learners.values():
-                    learner.add(index, traj, tau=(k == 0))
-            timer.__exit__()
+            with _Timer(profile, "collection_s"):
+                for k in range(cfg.offline_trajectories):
+                    route = rng.randrange(10)
+                    traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
+                                   explore_module())
+                    episodes.append({"route": route, **episode_metrics(traj)})
+                    for learner in learners.values():
+                        learner.add(index, traj, tau=(k == 0))
             record["methods"]["explore"] = _summarize(episodes)
             if index + 1 == first_online:
                 with _Timer(profile, "training_s"):
@@ -268,19 +262,17 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                     record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
                                                             if j.policy_name == method])
             # data collection: K rollouts per learner, MPC w.p. 1/2 else explore, into the learner's own D_t
-            collect = _Timer(profile, "collection_s")
-            collect.__enter__()
-            planning_before = sum(learner.planner.planning_s for learner in learners.values())
-            for name, learner in learners.items():
-                learner.planner.params = adapted[name]
-                for k in range(cfg.rollouts):
-                    use_mpc = rng.random() < 0.5
-                    route = rng.randrange(10)
-                    policy = learner.planner if use_mpc else explore_module()
-                    traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
-                                    policy, learner.n_actions)
-                    learner.buffers.add(index, traj)  # already in the learner's action space
-            collect.__exit__()
+            with _Timer(profile, "collection_s"):
+                planning_before = sum(learner.planner.planning_s for learner in learners.values())
+                for name, learner in learners.items():
+                    learner.planner.params = adapted[name]
+                    for k in range(cfg.rollouts):
+                        use_mpc = rng.random() < 0.5
+                        route = rng.randrange(10)
+                        policy = learner.planner if use_mpc else explore_module()
+                        traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
+                                       policy, learner.n_actions)
+                        learner.buffers.add(index, traj)  # already in the learner's action space
             profile["collection_planning_s"] = profile.get("collection_planning_s", 0.0) + sum(
                 learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)

@@ -17,12 +17,12 @@ Example:
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 from pernav.world.drivers import CONTEXT_CHOICES, NAMED_USERS, Context, DriverProfile, ProfileError, named_user
+from pernav.world.files import DataFileError, is_file, read_data_file
 from pernav.world.towns import TOWN_NAMES
 
 __all__ = ["Entry", "ScheduleError", "load_schedule", "paper_schedule", "parse_schedule"]
@@ -142,23 +142,12 @@ def parse_schedule(raw: Any) -> list[Entry]:
 def load_schedule(path: str | Path) -> list[Entry]:
     """Read and validate a YAML or JSON schedule file."""
     path = Path(path)
-    try:  # a name too long for a path, or with a NUL byte, is no file either
-        is_file = path.is_file()
-    except (OSError, ValueError):
-        is_file = False
-    if not is_file:
+    if not is_file(path):
         raise ScheduleError(f"schedule file {str(path)!r} does not exist")
     try:
-        text = path.read_text()
-        if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
-            raw = yaml.safe_load(text)
-        else:
-            raw = json.loads(text)
-    except Exception as exc:  # noqa: BLE001 - any parse error is reported in one line
-        first = (str(exc).splitlines() or [type(exc).__name__])[0]
-        raise ScheduleError(f"cannot parse schedule file {str(path)!r}: {first}") from None
+        raw = read_data_file(path)
+    except DataFileError as exc:
+        raise ScheduleError(f"cannot parse schedule file {str(path)!r}: {exc}") from None
     return parse_schedule(raw)
 
 

@@ -21,6 +21,7 @@ from typing import Any
 
 from pernav.study.config import METHODS, StudyConfig
 from pernav.study.parallel import make_executor
+from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
 
 __all__ = ["OutputError", "check_output", "run_study", "summarize"]
@@ -99,8 +100,6 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
     tmp.write_text(json.dumps(results, indent=1))
     os.replace(tmp, out / "results.json")
     if report:
-        from pernav.study.report import write_report
-
         write_report(results, out)
     return results
 
@@ -146,23 +145,15 @@ def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
         regret[t["town"]] = {
             "labels": [k for k in online if k in hind],
             "loss_regret": losses,  # l_t(U(P_t, tau_t)) - l_t(U(P_hindsight, tau_t)) on D_t
-            "average_loss_regret": _running_mean(losses),
+            "average_loss_regret": running_mean(losses),
             "cost_regret": costs,  # adapt - hindsight episodic cost per round
-            "average_cost_regret": _running_mean(costs),
+            "average_cost_regret": running_mean(costs),
             # does one-shot adaptation help? L-step loss of adapt's model on D_t without / with U(P_t, tau_t)
             "adaptation": {k: {"unadapted": t["unadapted_losses"].get(k), "adapted": online[k]} for k in online},
         }
     diagnostics = {t["town"]: t["diagnostics"] for t in towns}
     return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret,
             "diagnostics": diagnostics}
-
-
-def _running_mean(values: list[float]) -> list[float]:
-    out, total = [], 0.0
-    for i, v in enumerate(values, 1):
-        total += v
-        out.append(total / i)
-    return out
 
 
 def summarize(iterations: list[dict[str, Any]]) -> dict[str, Any]:

@@ -1,0 +1,43 @@
+"""Reading the YAML or JSON files users hand in (driver profiles, schedules).
+
+Example:
+    >>> import json, tempfile
+    >>> with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as f:
+    ...     json.dump({"user": "user1"}, f)
+    >>> read_data_file(f.name)
+    {'user': 'user1'}
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+__all__ = ["DataFileError", "is_file", "read_data_file"]
+
+
+class DataFileError(ValueError):
+    """The file cannot be read or parsed; the message is the first line of the cause."""
+
+
+def is_file(path: Path) -> bool:
+    """``path.is_file()``, but a name too long for a path, or with a NUL byte, is no file either."""
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return False
+
+
+def read_data_file(path: str | Path) -> Any:
+    """The parsed content of a ``.yaml``/``.yml`` (YAML) or any other (JSON) file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+        if path.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            return yaml.safe_load(text)
+        return json.loads(text)
+    except Exception as exc:  # noqa: BLE001 - any read/parse error is the user's file, reported in one line
+        raise DataFileError((str(exc).splitlines() or [type(exc).__name__])[0]) from None
