@@ -11,7 +11,11 @@ file), so that a pass is not a pick among many tries:
   (one-sided sign test, p < 0.05),
 * the oracle has no more collisions (vehicle collisions + edge strikes).
 
-Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/oracle_vs_explore.py [--workers 2] [--json FILE]
+The second batch ("older", added after the first batch's results, again before its own runs) asks
+whether slow drivers in general, not only the named ones, gain from personal timing.
+
+Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/oracle_vs_explore.py [--batch named|older]
+[--workers 2] [--json FILE]
 """
 
 from __future__ import annotations
@@ -26,10 +30,11 @@ import numpy as np
 from tqdm import tqdm
 
 from pernav.env.episodes import drive_routes
+from pernav.world.drivers import Context, Population
 
 TOWNS = ("Town1", "Town2")
 SEEDS = (0, 100, 200)
-CANDIDATES = {  # label -> (named user, context overrides); slow-timing users in several contexts
+NAMED = {  # label -> (user, context overrides); batch "named": slow-timing users in several contexts
     "user3, fog, cybertruck": ("user3", {"vehicle": "cybertruck", "visual": "foggy"}),
     "user2 (novice)": ("user2", {}),
     "user2, fog, cybertruck": ("user2", {"vehicle": "cybertruck", "visual": "foggy"}),
@@ -38,6 +43,14 @@ CANDIDATES = {  # label -> (named user, context overrides); slow-timing users in
     "user5 (cautious)": ("user5", {}),
     "user5, fog, cybertruck": ("user5", {"vehicle": "cybertruck", "visual": "foggy"}),
 }
+# batch "older": the first four samples of the older-driver corner of the population (SPEC.md §3:
+# older drivers react in 1.5-2.5 s and drive at ~0.8 of the limit), each in the default context
+OLDER_POPULATION = Population(seed=3, ranges={
+    "reaction_time": (1.8, 2.5), "speed_factor": (0.8, 0.9), "decision_time": (2.4, 3.0),
+    "turn_speed": (4.0, 5.5), "speech_tolerance": (0.0, 0.5)}, fixed_context=Context())
+OLDER = {f"older-driver sample {i}": (OLDER_POPULATION.sample()[0].to_dict(), {}) for i in range(4)}
+BATCHES = {"named": NAMED, "older": OLDER}
+CANDIDATES = {**NAMED, **OLDER}
 
 
 def sign_test_p(wins: int, losses: int) -> float:
@@ -70,9 +83,11 @@ def compare(episodes: dict[str, list[dict]]) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--batch", choices=list(BATCHES), default="named")
     ap.add_argument("--json", help="write the table as JSON here")
     args = ap.parse_args()
-    jobs = list(product(CANDIDATES, ("explore", "oracle"), TOWNS, SEEDS))
+    batch = BATCHES[args.batch]
+    jobs = list(product(batch, ("explore", "oracle"), TOWNS, SEEDS))
     runs: dict[tuple, list[dict]] = {}
     with ProcessPoolExecutor(args.workers) as pool:
         for label, policy, town, seed, eps in tqdm(pool.map(_drive, jobs), total=len(jobs), desc="drives"):
@@ -81,7 +96,7 @@ def main() -> None:
     print("| candidate | explore cost; collisions | oracle cost; collisions | oracle cheaper / dearer (ties) "
           "| median o − e | sign p | criterion |")
     print("|---|---|---|---|---|---|---|")
-    for label in CANDIDATES:
+    for label in batch:
         paired = {p: [x for t in TOWNS for s in SEEDS for x in runs[label, p, t, s]] for p in ("explore", "oracle")}
         r = table[label] = compare(paired)
         print(f"| {label} | {r['explore']:.0f}; {r['collisions']['explore']} | {r['oracle']:.0f}; "
