@@ -14,7 +14,8 @@ file), so that a pass is not a pick among many tries:
 The second batch ("older", added after the first batch's results, again before its own runs) asks
 whether slow drivers in general, not only the named ones, gain from personal timing.
 
-Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/oracle_vs_explore.py [--batch named|older]
+Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/oracle_vs_explore.py [--batch named|older|examples]
+[--all-towns]
 [--workers 2] [--json FILE]
 """
 
@@ -49,8 +50,14 @@ OLDER_POPULATION = Population(seed=3, ranges={
     "reaction_time": (1.8, 2.5), "speed_factor": (0.8, 0.9), "decision_time": (2.4, 3.0),
     "turn_speed": (4.0, 5.5), "speech_tolerance": (0.0, 0.5)}, fixed_context=Context())
 OLDER = {f"older-driver sample {i}": (OLDER_POPULATION.sample()[0].to_dict(), {}) for i in range(4)}
-BATCHES = {"named": NAMED, "older": OLDER}
-CANDIDATES = {**NAMED, **OLDER}
+# batch "all-towns": the issue's own examples (slow in fog in the truck, fast on the keyboard,
+# distracted) and the two next-best of batch "named", on all five towns (run with --all-towns):
+# batches "named" and "older" used Town1 and Town2 only, which have no roundabout
+EXAMPLES = {k: NAMED[k] for k in ("user3, fog, cybertruck", "user5, fog, cybertruck", "user3 (elderly-like)")}
+EXAMPLES |= {"user4, keyboard (fast)": ("user4", {"equipment": "keyboard"}), "user6 (distracted)": ("user6", {})}
+BATCHES = {"named": NAMED, "older": OLDER, "examples": EXAMPLES}
+CANDIDATES = {**NAMED, **OLDER, **EXAMPLES}
+ALL_TOWNS = ("Town1", "Town2", "Town3", "Town4", "Town5")
 
 
 def sign_test_p(wins: int, losses: int) -> float:
@@ -60,7 +67,10 @@ def sign_test_p(wins: int, losses: int) -> float:
 
 
 def _drive(job: tuple[str, str, str, int]) -> tuple[str, str, str, int, list[dict]]:
-    label, policy, town, seed = job
+    return _drive_one(*job)
+
+
+def _drive_one(label: str, policy: str, town: str, seed: int) -> tuple[str, str, str, int, list[dict]]:
     name, context = CANDIDATES[label]
     out = drive_routes(town, policy, name, context=context, seed=seed)
     return label, policy, town, seed, out["episodes"]
@@ -77,17 +87,20 @@ def compare(episodes: dict[str, list[dict]]) -> dict:
     passed = bool(o.mean() < e.mean() and np.median(diff) <= 0 and p < 0.05 and hits["oracle"] <= hits["explore"])
     return {"explore": float(e.mean()), "oracle": float(o.mean()), "wins": wins, "losses": losses,
             "ties": int(len(diff) - wins - losses), "median_diff": float(np.median(diff)), "sign_p": p,
-            "collisions": hits, "passed": passed}
+            "collisions": hits, "passed": passed, "explore_costs": e.round(1).tolist(),
+            "oracle_costs": o.round(1).tolist()}
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--batch", choices=list(BATCHES), default="named")
+    ap.add_argument("--all-towns", action="store_true", help="Town1-Town5 with seeds 0 and 100 (100 episodes)")
     ap.add_argument("--json", help="write the table as JSON here")
     args = ap.parse_args()
     batch = BATCHES[args.batch]
-    jobs = list(product(batch, ("explore", "oracle"), TOWNS, SEEDS))
+    towns, seeds = (ALL_TOWNS, SEEDS[:2]) if args.all_towns else (TOWNS, SEEDS)
+    jobs = list(product(batch, ("explore", "oracle"), towns, seeds))
     runs: dict[tuple, list[dict]] = {}
     with ProcessPoolExecutor(args.workers) as pool:
         for label, policy, town, seed, eps in tqdm(pool.map(_drive, jobs), total=len(jobs), desc="drives"):
@@ -97,7 +110,7 @@ def main() -> None:
           "| median o − e | sign p | criterion |")
     print("|---|---|---|---|---|---|---|")
     for label in batch:
-        paired = {p: [x for t in TOWNS for s in SEEDS for x in runs[label, p, t, s]] for p in ("explore", "oracle")}
+        paired = {p: [x for t in towns for s in seeds for x in runs[label, p, t, s]] for p in ("explore", "oracle")}
         r = table[label] = compare(paired)
         print(f"| {label} | {r['explore']:.0f}; {r['collisions']['explore']} | {r['oracle']:.0f}; "
               f"{r['collisions']['oracle']} | {r['wins']} / {r['losses']} ({r['ties']}) | {r['median_diff']:+.1f} "
