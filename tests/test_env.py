@@ -131,3 +131,49 @@ def test_cli_unknown_argument_exit_2():
     out = subprocess.run([sys.executable, "-m", "pernav.cli", "drive", "--town", "Town1", "--policy", "magic",
                           "--user", "user1"], capture_output=True, text=True)
     assert out.returncode == 2 and "Traceback" not in out.stderr
+
+
+def _prompts_along(route, policy, speed=10.0):
+    """Drive a policy along ``route`` at constant speed, playing as the env does (on change)."""
+    from pernav.env.policies import NavView
+
+    log, last, progress = [], 0, 0.0
+    while progress < route.length:
+        action = policy(NavView(route, progress, speed, last, log))
+        if action and action != last:
+            log.append((action, progress))
+        last, progress = action, progress + speed
+    return log
+
+
+@pytest.mark.parametrize("town", TOWN_NAMES)
+def test_every_turn_gets_its_own_turn_prompt(town):
+    # the "turn right" said for a roundabout's exit must not count as said for a right turn after it
+    from pernav.env.policies import TURN, explore_policy
+    from pernav.world.towns import get_town
+
+    for route in get_town(town).routes:
+        log = _prompts_along(route, explore_policy())
+        start = 0.0
+        for m in (m for m in route.manoeuvres if m.decision):
+            if m.kind in TURN:
+                said = [s for a, s in log if a == TURN[m.kind] and start <= s < m.s]
+                assert said, (town, route.name, m)
+            start = m.s
+
+
+def test_progress_after_reroute_follows_the_new_route():
+    # Town4 route 5, seed 5: user4 misses the last right turn; the detour runs back along the same
+    # road on its other side, onto which the new route's progress used to latch (then ran backwards)
+    env = NavigationEnv("Town4", config={"n_traffic": 8})
+    _, info = env.reset(seed=5, options={"route": 5, "user": "user4", "context": {"equipment": "keyboard"}})
+    done, last, reroutes = False, 0.0, 0
+    while not done:
+        _, _, term, trunc, info = env.step(info["oracle_action"])
+        done = term or trunc
+        if info["reroutes"] != reroutes:
+            reroutes, last = info["reroutes"], 0.0
+            assert env.progress < 30.0, env.progress  # the new route starts where the car is
+        assert env.progress >= last - 2.0, (env.time, last, env.progress)
+        last = env.progress
+    assert reroutes >= 1 and info["completed"]

@@ -259,7 +259,9 @@ class NavigationEnv(gym.Env):
         except RouteError:  # nothing reaches the goal from here (cannot happen in the built-in towns)
             return
         self.reroutes += 1
-        self.progress, _ = self.route.project(ego.position)
+        # the new route starts where the car is: a detour may pass back along this road on its other
+        # side, and an unhinted projection would latch onto that (progress then runs backwards)
+        self.progress, _ = self.route.project(ego.position, hint=0.0)
 
     def _observation(self) -> np.ndarray:
         ego = self.world.ego

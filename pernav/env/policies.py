@@ -43,11 +43,12 @@ class NavView:
         return passed[-1] if passed else None
 
     def played_for(self, target: Manoeuvre) -> set[int]:
-        """Instructions played since the last junction before ``target`` (a roundabout's entry and
-        exits share one window: their prompts may come before the entry)."""
+        """Instructions played since the last decision at another junction before ``target`` (a
+        roundabout's entry and exits share one window: their prompts may come before the entry;
+        the "turn right" said for a roundabout's exit is not the one for a right turn after it)."""
         start = 0.0
         for m in self.route.manoeuvres:
-            if m.decision and m.s < target.s and m.kind in ("left", "right", "straight"):
+            if m.decision and m.s < target.s and m.junction != target.junction:
                 start = m.s
         return {i for i, s in self.log if s >= start}
 
