@@ -66,14 +66,9 @@ def sign_test_p(wins: int, losses: int) -> float:
     return sum(math.comb(n, k) for k in range(wins, n + 1)) / 2**n if n else 1.0
 
 
-def _drive(job: tuple[str, str, str, int]) -> tuple[str, str, str, int, list[dict]]:
-    return _drive_one(*job)
-
-
-def _drive_one(label: str, policy: str, town: str, seed: int) -> tuple[str, str, str, int, list[dict]]:
+def _drive(label: str, policy: str, town: str, seed: int) -> list[dict]:
     name, context = CANDIDATES[label]
-    out = drive_routes(town, policy, name, context=context, seed=seed)
-    return label, policy, town, seed, out["episodes"]
+    return drive_routes(town, policy, name, context=context, seed=seed)["episodes"]
 
 
 def compare(episodes: dict[str, list[dict]]) -> dict:
@@ -103,8 +98,9 @@ def main() -> None:
     jobs = list(product(batch, ("explore", "oracle"), towns, seeds))
     runs: dict[tuple, list[dict]] = {}
     with ProcessPoolExecutor(args.workers) as pool:
-        for label, policy, town, seed, eps in tqdm(pool.map(_drive, jobs), total=len(jobs), desc="drives"):
-            runs[label, policy, town, seed] = eps
+        drives = pool.map(_drive, *zip(*jobs, strict=True))  # results come back in the order of jobs
+        for job, eps in zip(jobs, tqdm(drives, total=len(jobs), desc="drives"), strict=True):
+            runs[job] = eps
     table = {}
     print("| candidate | explore cost; collisions | oracle cost; collisions | oracle cheaper / dearer (ties) "
           "| median o − e | sign p | criterion |")
