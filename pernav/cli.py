@@ -117,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (SPEC.md §5)")
     p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
     p.add_argument("--seed", type=int)
+    p.add_argument("--planner", choices=["retime", "paper"],
+                   help="the learners' planner: retime (default: long horizon, re-timed explore prompts) or paper "
+                        "(horizon-5 masked tree)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -140,6 +143,8 @@ def _study(args: argparse.Namespace) -> None:
         cfg.towns = list(args.towns)
     if args.seed is not None:
         cfg.seed = args.seed
+    if args.planner is not None:
+        cfg.planner = {"kind": args.planner}
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

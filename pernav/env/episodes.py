@@ -16,7 +16,7 @@ from pernav.env.navigation import NavigationEnv, load_user
 from pernav.world.towns import TownError
 
 METRICS = ("tracking_cost", "vehicle_collisions", "edge_strikes", "collisions", "missed_turns",
-           "wrong_turns", "reroutes", "completed", "time")
+           "wrong_turns", "reroutes", "extra_distance", "completed", "time")
 
 
 def run_episode(env: NavigationEnv, policy: str, route: int, seed: int, frames: list | None = None,

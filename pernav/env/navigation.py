@@ -17,13 +17,14 @@ Example:
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from pernav.env.planning import action_mask, explore_plan, plan_goals
+from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
 from pernav.env.policies import NavView, PromptPolicy, explore_policy, oracle_policy
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
@@ -55,6 +56,8 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "reroute_distance": 8.0,  # m off the route before the navigation re-plans
     "plan_horizon": 5,  # steps of the planning context in info (goals, explore plan, action mask)
     "plan_shift": 2,  # explore-plan time shifts the planner may match (steps each way)
+    "future_steps": 18,  # steps of the explore policy's future plan in info (the re-timing planner's input)
+    "route_points": 96,  # points of the planned route ahead in info (every 3 m from 15 m behind the car)
 }
 
 
@@ -200,11 +203,18 @@ class NavigationEnv(gym.Env):
         self.completed = False
         self._explore_past: list[int] = []  # explore instructions of the past steps (planning context)
         self.goal = self.route.goal_waypoint(self.progress, 0.0)
+        self.planned_length, self.odometer = self.route.length, 0.0
         return self._observation(), self._info(0.0, False)
 
     def step(self, action):
         if self.world is None:
             raise RuntimeError("call reset() before step()")
+        cost, played, arrived, truncated = self.advance(action)
+        return self._observation(), -cost, arrived, truncated, self._info(cost, played)
+
+    def advance(self, action) -> tuple[float, bool, bool, bool]:
+        """One step without the observation and info (what a planner's branch needs):
+        ``(step cost, played, arrived, truncated)``."""
         instruction, playback = self.decode(action)
         self._explore_past = [*self._explore_past, self._explore(self.nav_view())][-max(self.config["plan_shift"], 1):]
         played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
@@ -215,8 +225,10 @@ class NavigationEnv(gym.Env):
         else:
             self.repeat += 1
         self.last_instruction = instruction
+        before = self.world.ego.position.copy()
         for _ in range(self.config["frequency"]):
             self.world.frame()
+        self.odometer += float(np.linalg.norm(self.world.ego.position - before))
         self.time += 1.0
         self.world.maintain_traffic()
         ego = self.world.ego
@@ -228,8 +240,32 @@ class NavigationEnv(gym.Env):
         self.completed = bool(arrived)
         truncated = not arrived and self.time >= self.time_limit
         self.goal = self.route.goal_waypoint(self.progress, float(ego.speed))
-        obs = self._observation()
-        return obs, -cost, bool(arrived), bool(truncated), self._info(cost, played)
+        return cost, played, bool(arrived), bool(truncated)
+
+    def branch(self, seed: int | None = None) -> NavigationEnv:
+        """A copy of this env in its current state that steps on independently (0.7 ms).
+
+        With ``seed`` the copy draws fresh randomness (mishearing, compliance, guesses, traffic), so
+        planning on it does not know the original's future; without, it replays the original exactly.
+
+        >>> env = NavigationEnv("Town1", config={"n_traffic": 2})
+        >>> _ = env.reset(seed=0, options={"route": 0})
+        >>> twin = env.branch()
+        >>> [env.step(2)[1] for _ in range(3)] == [twin.step(2)[1] for _ in range(3)]
+        True
+        """
+        if self.world is None:
+            raise RuntimeError("call reset() before branch()")
+        memo = self.world.shared()
+        memo.update({id(self.route): self.route, id(self.driver): self.driver, id(self.profile): self.profile,
+                     id(self._explore): self._explore, id(self._oracle): self._oracle})
+        viewer, self._viewer = self._viewer, None
+        try:
+            twin = copy.deepcopy(self, memo)
+        finally:
+            self._viewer = viewer
+        twin.world.after_copy(memo, seed)
+        return twin
 
     def _follow_route(self) -> None:
         """Track progress; re-plan from where the car is when it has left the route."""
@@ -262,6 +298,12 @@ class NavigationEnv(gym.Env):
         # the new route starts where the car is: a detour may pass back along this road on its other
         # side, and an unhinted projection would latch onto that (progress then runs backwards)
         self.progress, _ = self.route.project(ego.position, hint=0.0)
+
+    def extra_distance(self) -> float:
+        """Metres driven beyond the planned route: distance driven plus what is left to the destination,
+        minus the route planned at reset (a missed turn's detour shows here, not only in the tracking
+        cost, which a re-route that skips waypoints can make cheaper)."""
+        return max(self.odometer + self.route.length - self.progress - self.planned_length, 0.0)
 
     def _observation(self) -> np.ndarray:
         ego = self.world.ego
@@ -300,6 +342,7 @@ class NavigationEnv(gym.Env):
             "missed_turns": self.missed_turns,
             "wrong_turns": self.wrong_turns,
             "reroutes": self.reroutes,
+            "extra_distance": self.extra_distance(),
             "completed": self.completed,
             "time": self.time,
             "progress": self.progress / max(self.route.length, 1.0),
@@ -322,6 +365,8 @@ class NavigationEnv(gym.Env):
             "plan_goals": plan_goals(self.route, self.progress, speed, H),
             "explore_plan": plan,
             "action_mask": action_mask(self.route, self.progress, speed, in_roundabout, plan, H, S, playbacks),
+            "explore_future": explore_plan(self._explore, view, [], int(self.config["future_steps"]), 0),
+            "route_ahead": route_ahead(self.route, self.progress, int(self.config["route_points"])),
         }
 
     def render(self):

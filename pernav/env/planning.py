@@ -33,17 +33,28 @@ from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, 
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
 from pernav.world.simulation import N_INSTRUCTIONS
 
-__all__ = ["RING_REACH", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions", "explore_plan", "plan_goals"]
+__all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",
+           "explore_plan", "plan_goals", "route_ahead"]
 
 TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"
 TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)  # everything but silence refers to a junction or a roundabout
+ROUTE_SPACING = 3.0  # m between the points of ``route_ahead``
+ROUTE_BEHIND = 15.0  # m of route behind the car included in ``route_ahead``
 
 
 def plan_goals(route: Route, progress: float, speed: float, horizon: int) -> np.ndarray:
     """``[horizon, 2]`` goal waypoints: the route point ``h`` steps ahead at the current speed, h = 1..H."""
     step = max(speed * GOAL_LOOKAHEAD_S, WAYPOINT_SPACING)
     return np.stack([route.point_at(progress + step * h) for h in range(1, horizon + 1)]).astype(np.float32)
+
+
+def route_ahead(route: Route, progress: float, points: int) -> np.ndarray:
+    """``[points, 2]`` route points every ``ROUTE_SPACING`` m from ``ROUTE_BEHIND`` m behind the car (the
+    planned route a long-horizon planner measures an imagined car's distance and progress against)."""
+    s = progress - ROUTE_BEHIND + ROUTE_SPACING * np.arange(points)
+    idx = np.clip(np.searchsorted(route.s, s), 0, len(route.s) - 1)
+    return route.waypoints[idx].astype(np.float32)
 
 
 def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: int, shift: int) -> np.ndarray:

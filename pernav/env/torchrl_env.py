@@ -53,6 +53,7 @@ INFO_DTYPES: dict[str, torch.dtype] = {
     "missed_turns": torch.int64,
     "wrong_turns": torch.int64,
     "reroutes": torch.int64,
+    "extra_distance": torch.float32,
     "completed": torch.bool,
     "time": torch.float32,
     "distance_to_junction": torch.float32,
@@ -147,6 +148,8 @@ def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tupl
         "plan_goals": ((H, 2), torch.float32),
         "explore_plan": ((H + 2 * S,), torch.int64),
         "action_mask": ((H, n_actions), torch.bool),
+        "explore_future": ((int(config["future_steps"]),), torch.int64),
+        "route_ahead": ((int(config["route_points"]), 2), torch.float32),
     }
 
 

@@ -31,6 +31,7 @@ from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
 from pernav.model.dynamics import GX, GY, DynamicsModel, X, Y
+from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 
 __all__ = ["ImaginedNavigationEnv", "make_world_model"]
@@ -82,6 +83,35 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         self.state_spec = obs.clone()
         self.action_spec = Categorical(model.n_actions)
         self.reward_spec = Unbounded((1,))
+
+    @torch.no_grad()
+    def imagine(self, root: TensorDictBase, sequences: torch.Tensor,
+                params: list[TensorDictBase | None] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """Imagined positions and goals of action ``sequences`` ``[N, H]`` from one real ``root`` (with
+        ``"history"``): ``([M, N, H, 2], [M, N, H, 2])``, one row ``M`` per parameter set in ``params``
+        (an ensemble, adapted or not; ``None``: the model's own parameters).
+
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
+        >>> pos, goal = env.imagine(TensorDict({"history": torch.zeros(5, 21)}, []), torch.zeros(3, 4, dtype=torch.long))
+        >>> pos.shape
+        torch.Size([1, 3, 4, 2])
+        """
+        N, H = sequences.shape
+        positions, goals = [], []
+        for member in params if params else [None]:
+            hist = root["history"].float().expand(N, *root["history"].shape).clone()
+            pos, goal = [], []
+            with using(self.dynamics, member):
+                for h in range(H):
+                    state = self.dynamics(hist, sequences[:, h])
+                    hist = self.dynamics.next_window(hist, sequences[:, h], state)
+                    pos.append(state[:, [X, Y]])
+                    goal.append(state[:, [GX, GY]])
+            positions.append(torch.stack(pos, 1))
+            goals.append(torch.stack(goal, 1))
+        return torch.stack(positions), torch.stack(goals)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         if tensordict is None or "history" not in tensordict.keys() or "observation" not in tensordict.keys():

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import logging
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 
 import torch
@@ -93,8 +94,8 @@ class TreeSearchPlanner(MPCPlannerBase):
         self.shift_decay = float(shift_decay)
         if beam is not None and beam < 1:
             raise ValueError(f"beam must be >= 1 or None, got {beam}")
-        self.model = env.dynamics
-        self.n_actions = self.model.n_actions
+        self.model = getattr(env, "dynamics", None)  # None: an env that only imagines (the true simulator)
+        self.n_actions = self.model.n_actions if self.model is not None else int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if self.n_actions == 21 else 1)
         self.horizon, self.shift = int(horizon), int(shift)
         self.bonus, self.penalty, self.mask, self.beam = float(bonus), float(penalty), bool(mask), beam
@@ -177,6 +178,22 @@ class TreeSearchPlanner(MPCPlannerBase):
         return self._best(seqs, total, plan, evaluations)
 
     @torch.no_grad()
+    def imagined_search(self, root: TensorDictBase, goals: torch.Tensor, plan: torch.Tensor,
+                        mask: torch.Tensor) -> PlanResult:
+        """The same tree, imagined by the env's ``imagine`` (e.g. the true simulator) and averaged over its
+        samples: every sequence of the masked tree at once (the env shares their common prefixes)."""
+        H = min(self.horizon, goals.shape[0])
+        seqs = torch.cartesian_prod(*[self._allowed(mask, h) for h in range(H)]).reshape(-1, H)
+        pos, goal = self.env.imagine(root, seqs)  # [M, N, H, 2]
+        start = root["history"][-1, [GX, GY]].float().expand(*goal.shape[:2], 1, 2)
+        prev = torch.cat([start, goal[:, :, :-1]], dim=2) if self.goal_source == "state" else goals[:H]
+        cost = tracking_cost(pos, prev).sum(-1).mean(0)
+        if not self.mask:
+            cost = cost + sum(self._penalties(seqs[:, h], mask, h) for h in range(H))
+        total = self._final_cost(seqs, cost, plan[: H + 2 * self.shift])
+        return self._best(seqs, total, plan, seqs.numel())
+
+    @torch.no_grad()
     def flat_search(self, observation: torch.Tensor, history: torch.Tensor, goals: torch.Tensor,
                     plan: torch.Tensor, mask: torch.Tensor) -> PlanResult:
         """Reference: enumerate every sequence of the same tree and roll each out H steps (no sharing)."""
@@ -205,9 +222,15 @@ class TreeSearchPlanner(MPCPlannerBase):
         t0 = time.perf_counter()
         flat = td.reshape(-1)
         actions, self.last = [], []
-        with using(self.model, self.params):
+        with using(self.model, self.params) if self.model is not None else nullcontext():
             for i in range(flat.shape[0]):
                 row = flat[i]
+                if self.model is None:
+                    result = self.imagined_search(row, row["plan_goals"].float(), row["explore_plan"].long(),
+                                                  row["action_mask"].bool())
+                    self.last.append(result)
+                    actions.append(result.actions[0])
+                    continue
                 result = self.search(row["observation"].float(), row["history"].float(), row["plan_goals"].float(),
                                      row["explore_plan"].long(), row["action_mask"].bool())
                 self.last.append(result)

@@ -38,8 +38,7 @@ class StudyConfig:
     n_traffic: int = 8
     methods: list[str] = field(default_factory=lambda: list(METHODS))
     train: TrainConfig = field(default_factory=TrainConfig)
-    planner: dict[str, Any] = field(default_factory=lambda: {"horizon": 5, "shift": 2, "bonus": 20.0,
-                                                             "beam_speed": 64})
+    planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
     seed: int = 0
 
     def entries_for(self, town: str) -> list[Entry]:
@@ -80,7 +79,7 @@ def _smoke() -> StudyConfig:
         preset="smoke", towns=["Town1"], schedule=_select(["Offline 0", "Online 0", "Online 8"]),
         routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
         train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2),
-        planner={"horizon": 5, "shift": 2, "bonus": 20.0, "beam_speed": 32})
+        planner={"kind": "retime"})
 
 
 def _default() -> StudyConfig:

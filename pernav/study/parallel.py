@@ -123,14 +123,11 @@ def make_policy(job: EpisodeJob) -> Any:
         raise ValueError(f"unknown policy spec {job.policy!r}")
     from pernav.model.dynamics import DynamicsModel
     from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
-    from pernav.planner.tree_search import TreeSearchPlanner
+    from pernav.planner.factory import build_planner
 
     model = DynamicsModel(**job.model["config"])
     model.load_state_dict(job.model["state"])
-    p = job.cfg.planner
-    planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)), horizon=p["horizon"],
-                                shift=p["shift"], bonus=p["bonus"],
-                                beam=p.get("beam_speed") if job.n_actions == 21 else None)
+    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), job.cfg.planner, job.n_actions)
     planner.params = job.params
     return planner
 

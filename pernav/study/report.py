@@ -128,6 +128,28 @@ def _headline(results: dict[str, Any]) -> list[str]:
     return out
 
 
+def comparison_table(comparison: dict[str, Any]) -> str:
+    """Markdown of :func:`pernav.study.compare.compare`: paired differences to explore with 95 % CIs."""
+    lines = ["| town | method | rounds | explore − method (95 % CI) | gap closed (95 % CI) | gap closed, rounds "
+             "with headroom (n) | cost / explore, rounds without | collisions | missed turns | extra m |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+
+    def ci(x: dict[str, Any] | None, pct: bool = False) -> str:
+        if not x or x["mean"] != x["mean"]:  # NaN: no gap to close
+            return "–"
+        f = (lambda v: f"{100 * v:.0f} %") if pct else (lambda v: f"{v:+.0f}")
+        return f"{f(x['mean'])} [{f(x['low'])}, {f(x['high'])}]"
+
+    for town, methods in comparison.items():
+        for method, f in methods.items():
+            no_head = f.get("relative_cost_no_headroom")
+            lines.append(f"| {town} | {method} | {f['rounds']} | {ci(f['explore_minus_method'])} | "
+                         f"{ci(f.get('gap_closed'), True)} | {ci(f.get('gap_closed_headroom'), True)} "
+                         f"({f.get('headroom_rounds', 0)}) | {'–' if no_head is None else f'{no_head:.2f}'} | "
+                         f"{f['collisions']:.0f} | {f['missed_turns']:.0f} | {f['extra_distance']:.0f} |")
+    return "\n".join(lines)
+
+
 def write_report(results: dict[str, Any], out: str | Path) -> Path:
     """Write ``out/figures/*.png`` and ``out/report.md``; returns the report's path."""
     out = Path(out)
@@ -137,7 +159,9 @@ def write_report(results: dict[str, Any], out: str | Path) -> Path:
              f"Towns: {', '.join(results['summary'])}; seed {results['config']['seed']}; "
              f"wall time {results.get('timing', {}).get('wall_s', '?')} s.", "",
              "## Collisions per route set (mean (std) over online rounds), tracking cost and completion", "",
-             collision_table(results), "", "## Against the paper's headline", "", *_headline(results), ""]
+             collision_table(results), "", "## Paired comparison with explore (all online rounds' episodes, 95 % "
+             "bootstrap CIs)", "", comparison_table(results["comparison"]) if "comparison" in results else "–", "",
+             "## Against the paper's headline", "", *_headline(results), ""]
     for town in results["summary"]:
         plot_costs(results, town, figures / f"{town}_cost.png")
         plot_regret(results, town, figures / f"{town}_regret.png")

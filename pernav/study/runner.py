@@ -36,7 +36,7 @@ from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import adapt
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
-from pernav.planner.tree_search import TreeSearchPlanner
+from pernav.planner.factory import build_planner, env_planning_config
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
@@ -61,10 +61,7 @@ class Learner:
         self.model = DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden)
         self.buffers = RoundBuffers(L=cfg.train.L, seed=derive_seed(cfg.seed, town, name, "buffers"))
         self.trainer = FTMLTrainer(self.model, self.buffers, cfg.train, seed=derive_seed(cfg.seed, town, name))
-        p = cfg.planner
-        beam = p.get("beam_speed") if self.n_actions == 21 else None
-        self.planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(self.model)), horizon=p["horizon"],
-                                         shift=p["shift"], bonus=p["bonus"], beam=beam)
+        self.planner = build_planner(ImaginedNavigationEnv(make_world_model(self.model)), cfg.planner, self.n_actions)
         self.meta = name != "sysid"
 
     def adapted(self, tau: Any, cfg: StudyConfig) -> Any:
@@ -95,8 +92,7 @@ def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, A
 
 
 def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7):
-    config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21,
-              "plan_horizon": cfg.planner["horizon"], "plan_shift": cfg.planner["shift"]}
+    config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21, **env_planning_config(cfg.planner)}
     options = {"route": route, "user": entry.profile(), "context": entry.context()}
     return history_env(town, options, config=config, seed=seed, K=cfg.train.K)
 

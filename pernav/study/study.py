@@ -19,6 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from pernav.study.compare import compare
 from pernav.study.config import METHODS, StudyConfig
 from pernav.study.parallel import make_executor
 from pernav.study.report import running_mean, write_report
@@ -153,7 +154,7 @@ def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
         }
     diagnostics = {t["town"]: t["diagnostics"] for t in towns}
     return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret,
-            "diagnostics": diagnostics}
+            "comparison": compare([iterations]), "diagnostics": diagnostics}
 
 
 def summarize(iterations: list[dict[str, Any]]) -> dict[str, Any]:

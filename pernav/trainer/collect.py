@@ -57,6 +57,7 @@ def episode_metrics(trajectory: TensorDictBase) -> dict[str, Any]:
         "collisions": int(last["collisions"]),
         "missed_turns": int(last["missed_turns"]),
         "wrong_turns": int(last["wrong_turns"]),
+        "extra_distance": round(float(last["extra_distance"]), 1),
         "completed": bool(last["completed"]),
         "steps": int(trajectory.shape[0]),
     }

@@ -23,6 +23,7 @@ Example:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from highway_env import utils
@@ -674,6 +675,32 @@ class World:
     @property
     def cars(self) -> list[Vehicle]:
         return self.road.vehicles
+
+    # ----- branching (a true-dynamics model plans on copies of the live world) ------------------
+    def shared(self) -> dict[int, Any]:
+        """A ``copy.deepcopy`` memo of what a copy shares with this world: the town, its lanes, the
+        driver and every route (never mutated while driving)."""
+        memo: dict[int, Any] = {id(self.town): self.town, id(self.town.network): self.town.network,
+                                id(self.ego.driver): self.ego.driver}
+        for ends in self.town.network.graph.values():
+            for lanes in ends.values():
+                memo.update({id(lane): lane for lane in lanes})
+        memo.update({id(r): r for r in self.town.routes})
+        return memo
+
+    def after_copy(self, memo: dict[int, Any], seed: int | None = None) -> None:
+        """Fix a deep copy made with ``memo``: state keyed by ``id(car)`` (right-of-way holders, the
+        driver's contacts) re-keyed to the copied cars, and, with ``seed``, fresh random streams so the
+        copy does not know the original's future draws (mishearing, compliance, guesses, traffic)."""
+        new_id = {old: id(new) for old, new in memo.items() if isinstance(new, Vehicle)}
+        for jid, holders in self.row.holders.items():
+            self.row.holders[jid] = {new_id.get(k, k): arm for k, arm in holders.items()}
+        self.ego.in_contact = {new_id.get(k, k) for k in self.ego.in_contact}
+        if seed is not None:
+            self.rng = np.random.default_rng([seed, 10])
+            self.driver_rng = np.random.default_rng([seed, 11])
+            self.guess_rng = np.random.default_rng([seed, 12])
+            self.road.np_random = np.random.RandomState(seed & 0x7FFFFFFF)
 
     # ----- traffic population -----------------------------------------------------------------
     def spawn_traffic(self, initial: bool = False) -> None:

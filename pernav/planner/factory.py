@@ -1,0 +1,61 @@
+"""One place that builds a planner from a study's ``planner`` options (``kind: retime | paper``).
+
+Example:
+    >>> from pernav.model import DynamicsModel
+    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
+    >>> type(build_planner(env, {"kind": "paper", "horizon": 5})).__name__
+    'TreeSearchPlanner'
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from pernav.planner.retiming import RetimingPlanner
+from pernav.planner.tree_search import TreeSearchPlanner
+
+__all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_config"]
+
+#: The options each planner kind takes, with their defaults (``kind`` selects one).
+PLANNER_DEFAULTS: dict[str, dict[str, Any]] = {
+    "retime": {"horizon": 12, "advance": 6, "delay": 3, "route_weight": 1.0, "progress_weight": 1.0,
+               "margin": 20.0, "rel_margin": 0.05, "agree": 1.0},
+    "paper": {"horizon": 5, "shift": 2, "bonus": 20.0, "beam_speed": 64},
+}
+PLANNER_KINDS = tuple(PLANNER_DEFAULTS)
+
+
+def build_planner(env: Any, options: Mapping[str, Any], n_actions: int | None = None) -> Any:
+    """The planner ``options["kind"]`` (default ``retime``) on ``env``; unknown options raise ``ValueError``.
+
+    ``n_actions`` (7 or 21) picks the paper planner's beam for the 21-action space (``beam_speed``).
+    """
+    options = dict(options)
+    kind = options.pop("kind", "retime")
+    if kind not in PLANNER_DEFAULTS:
+        raise ValueError(f"unknown planner kind {kind!r}; choose one of {', '.join(PLANNER_KINDS)}")
+    unknown = sorted(set(options) - set(PLANNER_DEFAULTS[kind]) - {"ensemble"})
+    if unknown:
+        raise ValueError(f"unknown {kind} planner option {unknown[0]!r}; allowed: "
+                         f"kind, ensemble, {', '.join(PLANNER_DEFAULTS[kind])}")
+    opts = {**PLANNER_DEFAULTS[kind], **options}
+    opts.pop("ensemble", None)
+    if kind == "paper":
+        beam = opts.pop("beam_speed")
+        return TreeSearchPlanner(env, beam=beam if n_actions == 21 else None, **opts)
+    return RetimingPlanner(env, **opts)
+
+
+def env_planning_config(options: Mapping[str, Any]) -> dict[str, int]:
+    """The navigation env's config entries the planner ``options`` need (lengths of the planning context).
+
+    >>> env_planning_config({"kind": "retime", "horizon": 10, "advance": 4})
+    {'plan_horizon': 5, 'plan_shift': 2, 'future_steps': 14}
+    """
+    kind = options.get("kind", "retime")
+    opts = {**PLANNER_DEFAULTS.get(kind, {}), **options}
+    if kind == "paper":
+        return {"plan_horizon": int(opts["horizon"]), "plan_shift": int(opts["shift"])}
+    return {"plan_horizon": 5, "plan_shift": 2, "future_steps": int(opts["horizon"]) + int(opts["advance"])}

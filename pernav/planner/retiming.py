@@ -1,0 +1,191 @@
+"""RetimingPlanner: a long-horizon discrete tree search over re-timings of the explore plan (pernav's default).
+
+The paper's planner (:class:`~pernav.planner.tree_search.TreeSearchPlanner`, horizon 5) cannot see a prompt's
+consequence for a slow driver: audio, reaction, commit and the turn take 8-12 s. This planner searches a
+small tree whose branches are the explore policy's *own* upcoming prompts re-timed (the MPC policy is a
+residual of explore, as the paper intends), over a horizon long enough to see the turn (12 s by default):
+
+* ``advance k`` (k = 1..A): the explore plan ``k`` steps early (its next prompt said now, if it is within k);
+* ``delay k`` (k = 1..D): silence (or the held prompt) for ``k`` more steps, then the explore plan;
+* ``say a now``: every instruction the situation allows at this step (the fine choice near a junction),
+  held for the horizon (a held instruction is not replayed);
+* with 21 actions, each of these at the three playback speeds.
+
+Each candidate is imagined from the current state by the env's ``imagine`` (a learned
+:class:`~pernav.model.world_model.ImaginedNavigationEnv`, one row per ensemble member, or the true simulator,
+:class:`~pernav.diagnostics.TrueDynamicsEnv`, one row per re-seeded sample) and scored by
+
+    sum_h tracking_cost(pos_h, goal_{h-1})  +  route_weight * sum_h dist(pos_h, planned route)^2
+                                            -  progress_weight * (route distance of pos_H)
+
+The first term is the env's own step cost; the second makes a missed turn or a circled roundabout cost
+inside the horizon (the env re-routes after a miss, so its goals alone would forgive it); the third keeps
+stopping from looking cheap. The planner leaves explore only where the imagined gain is clear: the best
+candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` (relative) on average and in
+at least ``agree`` of the rows (ensemble members or samples); otherwise it plays explore's action. So a poor
+or uncertain model costs little.
+
+Reads ``"history"``, ``"explore_future"`` ``[F]``, ``"route_ahead"`` ``[P, 2]`` and ``"action_mask"`` (the
+navigation env provides them, :mod:`pernav.env.planning`); writes ``"action"``.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from pernav.model import DynamicsModel
+    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,)))), horizon=4)
+    >>> td = TensorDict({"history": torch.zeros(5, 21), "explore_future": torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]),
+    ...                  "route_ahead": torch.zeros(10, 2), "action_mask": torch.ones(5, 7, dtype=torch.bool)}, [])
+    >>> int(planner(td)["action"]) in range(7)
+    True
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.modules.planners import MPCPlannerBase
+
+from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
+from pernav.world.cost import tracking_cost
+
+__all__ = ["RetimingPlanner", "RetimingResult", "candidate_plans"]
+
+
+@dataclass
+class RetimingResult:
+    """One decision: the candidates, their mean costs, which one is explore's and which was chosen."""
+
+    candidates: torch.Tensor  # [N, H] actions
+    costs: torch.Tensor  # [N] mean over rows
+    explore: int
+    chosen: int
+    gain: float  # explore's cost minus the chosen one's (0 when explore is kept)
+
+
+def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, horizon: int, advance: int,
+                    delay: int) -> tuple[torch.Tensor, int]:
+    """The candidate instruction sequences ``[N, horizon]`` (unique) and the index of explore's own plan.
+
+    ``future`` holds explore's instructions for the next steps (at least ``horizon + advance``), ``last``
+    the instruction played last step, ``allowed`` the instructions the situation allows now.
+
+    >>> seqs, e = candidate_plans(torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 2, 1)
+    >>> seqs[e].tolist()
+    [0, 0, 4, 4]
+    >>> [0, 2, 2, 2] in seqs.tolist() and [4, 4, 2, 2] in seqs.tolist()
+    True
+    """
+    H = horizon
+    pad = future[-1:].expand(H + advance)  # past the known future the plan stays as it ends
+    future = torch.cat([future, pad])
+    held = int(future[0]) if int(future[0]) == last and last != 0 else 0
+    rows = [future[:H]]
+    rows += [future[k:k + H] for k in range(1, advance + 1)]
+    rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)]
+    if bool(future[: advance + 1].any()):  # a prompt is due within reach: the fine choices now as well
+        rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist() if a != 0]
+    seqs, inverse = torch.unique(torch.stack(rows), dim=0, return_inverse=True)
+    return seqs, int(inverse[0])
+
+
+class RetimingPlanner(MPCPlannerBase):
+    """Tree search over re-timings of the explore plan with a route-aware cost; see the module docstring.
+
+    Args:
+        env: an env with ``imagine(root, sequences) -> (positions, goals)``, ``[M, N, H, 2]`` each.
+        horizon: imagined steps (12: prompt, audio, reaction, commit and the turn of the slowest driver).
+        advance, delay: how many steps earlier / later explore's plan may be re-timed.
+        route_weight: weight of the squared distance to the planned route.
+        progress_weight: reward per metre of route progress at the horizon.
+        margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
+        agree: fraction of the rows (ensemble members, samples) that must each see a gain.
+        playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
+    """
+
+    def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 3, route_weight: float = 1.0,
+                 progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
+                 playbacks: int | None = None) -> None:
+        super().__init__(env, action_key="action")
+        if horizon < 1 or advance < 0 or delay < 0:
+            raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
+        if not 0.0 < agree <= 1.0:
+            raise ValueError(f"agree must be in (0, 1], got {agree}")
+        self.horizon, self.advance, self.delay = int(horizon), int(advance), int(delay)
+        self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
+        self.margin, self.rel_margin, self.agree = float(margin), float(rel_margin), float(agree)
+        n_actions = int(env.action_spec.space.n)
+        self.playbacks = playbacks or (3 if n_actions == 21 else 1)
+        self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
+        self.in_keys = ["history", "explore_future", "route_ahead", "action_mask"]
+        self.last: list[RetimingResult] = []
+        self.planning_s = 0.0
+        self.decisions = self.departures = 0  # decisions searched, and those that left explore
+
+    def _actions(self, seqs: torch.Tensor) -> tuple[torch.Tensor, int]:
+        """Instruction sequences in the action space (with 21 actions: each at the three speeds)."""
+        if self.playbacks == 1:
+            return seqs, 1
+        return torch.cat([seqs * 3 + p for p in (1, 0, 2)]), 3  # normal first: explore's is row 0 of its block
+
+    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> torch.Tensor:
+        """``[M, N]`` cost of each sequence for each row of the env's imagination."""
+        params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
+        kwargs = {} if params is None else {"params": params}
+        pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
+        start_goal = root["history"][-1, [GX, GY]].float() if "history" in root.keys() else goal[:, :, 0]
+        prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
+        cost = tracking_cost(pos, prev).sum(-1)
+        route = root["route_ahead"].float()  # [P, 2]
+        d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
+        dist, nearest = d.min(-1)
+        cost = cost + self.route_weight * (dist ** 2).sum(-1)
+        return cost - self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype)  # ROUTE_SPACING m per point
+
+    @torch.no_grad()
+    def decide(self, root: TensorDictBase) -> tuple[int, RetimingResult | None]:
+        """The action for one root (unbatched tensordict) and the search behind it (``None``: no choice)."""
+        future = root["explore_future"].long()
+        hist = root["history"]
+        last_onehot = hist[-2, STATE_DIM:] if hist.shape[0] > 1 else hist[-1, STATE_DIM:]
+        last = int(last_onehot.argmax()) // self.playbacks if bool(last_onehot.any()) else 0
+        mask = root["action_mask"][0].bool()
+        allowed = mask.reshape(-1, self.playbacks).any(-1).nonzero().squeeze(-1)
+        seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay)
+        seqs, blocks = self._actions(seqs)
+        explore_action = int(seqs[explore, 0])
+        if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
+            return explore_action, None
+        cost = self.costs(root, seqs)  # [M, N]
+        mean = cost.mean(0)
+        gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
+        need = self.margin + self.rel_margin * mean[explore].abs()
+        ok = (gain.mean(0) > need) & ((gain > 0).to(cost.dtype).mean(0) >= self.agree)
+        ok &= torch.isfinite(mean)
+        self.decisions += 1
+        if bool(ok.any()):
+            chosen = int(torch.where(ok, mean, torch.full_like(mean, float("inf"))).argmin())
+            self.departures += int(int(seqs[chosen, 0]) != explore_action)
+        else:
+            chosen = explore
+        result = RetimingResult(seqs, mean, explore, chosen, float(mean[explore] - mean[chosen]))
+        return int(seqs[chosen, 0]), result
+
+    def planning(self, td: TensorDictBase) -> torch.Tensor:
+        missing = [k for k in self.in_keys if k not in td.keys()]
+        if missing:
+            raise KeyError(f"RetimingPlanner needs {missing} in the tensordict (the navigation env writes "
+                           "explore_future/route_ahead/action_mask; wrap it with HistoryWindow for history)")
+        t0 = time.perf_counter()
+        flat = td.reshape(-1)
+        actions, self.last = [], []
+        for i in range(flat.shape[0]):
+            action, result = self.decide(flat[i])
+            if result is not None:
+                self.last.append(result)
+            actions.append(action)
+        self.planning_s += time.perf_counter() - t0
+        return torch.tensor(actions, dtype=torch.long).reshape(td.shape)

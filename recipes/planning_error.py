@@ -1,0 +1,91 @@
+"""Planning error apart from model error: planners on the true simulator vs explore and the oracle.
+
+Every panel driver (:data:`pernav.diagnostics.panel.PANEL`: named users with headroom, a fast keyboard
+driver, population samples) drives the same episodes (route r with seed 1000 + r) in Town1 and Town3 with:
+
+* ``explore`` and ``oracle`` (the rules timed for the average driver / for the true driver);
+* ``retime@true``: pernav's default planner on the true simulator (:class:`pernav.diagnostics.TrueDynamicsEnv`:
+  re-seeded copies of the live env, averaged), i.e. no model error: its loss to the oracle is planning error;
+* ``paper@true``: the paper's planner (horizon 5, masked tree, explore bonus) on the same true simulator.
+
+With ``--study DIR`` it adds ``retime@learned`` with each learner's final model from that study's checkpoints
+(adapted on one explore trajectory of the driver, as in the study), whose loss to ``retime@true`` is model
+error. Paired differences to explore carry 95 % bootstrap CIs. Results are written as jobs finish.
+
+Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
+[--samples 1] [--workers 2] [--json docs/figures/planning_error.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from itertools import product
+
+import numpy as np
+from tqdm import tqdm
+
+from pernav.diagnostics.panel import PANEL, PanelJob, drive_panel_episode
+from pernav.diagnostics.stats import gap_closed, paired_difference
+
+TOWNS = ("Town1", "Town3")
+
+
+def table(episodes: list[dict]) -> str:
+    """Markdown: per method, mean cost, collisions, missed turns, extra distance, difference to explore."""
+    by = defaultdict(dict)
+    for e in episodes:
+        by[e["method"]][(e["driver"], e["town"], e["route"], e["seed"])] = e
+    lines = ["| method | episodes | tracking cost | explore − method (95 % CI) | gap closed (95 % CI) | collisions "
+             "(explore) | missed turns (explore) | extra m (explore) |", "|---|---|---|---|---|---|---|---|"]
+    for method, eps in by.items():
+        keys = [k for k in eps if k in by["explore"] and k in by["oracle"]]
+        if not keys:
+            continue
+        cost = [eps[k]["tracking_cost"] for k in keys]
+        ex = [by["explore"][k]["tracking_cost"] for k in keys]
+        orc = [by["oracle"][k]["tracking_cost"] for k in keys]
+        d = paired_difference(ex, cost)
+        g = gap_closed(ex, cost, orc)
+
+        def total(key: str, src: dict, keys: list = keys) -> float:
+            return sum(src[k][key] for k in keys)
+
+        lines.append(f"| {method} | {len(keys)} | {np.mean(cost):.0f} | {d['mean']:+.0f} [{d['low']:+.0f}, {d['high']:+.0f}] "
+                     f"| {g['mean']:.0%} [{g['low']:.0%}, {g['high']:.0%}] | {total('collisions', eps):.0f} "
+                     f"({total('collisions', by['explore']):.0f}) | {total('missed_turns', eps):.0f} "
+                     f"({total('missed_turns', by['explore']):.0f}) | {total('extra_distance', eps):.0f} "
+                     f"({total('extra_distance', by['explore']):.0f}) |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--routes", type=int, default=5, help="routes 0..N-1 of each town")
+    ap.add_argument("--paper-routes", type=int, default=2, help="routes for paper@true (slow: a full tree)")
+    ap.add_argument("--samples", type=int, default=1, help="re-seeded simulator copies per imagination")
+    ap.add_argument("--drivers", nargs="*", default=list(PANEL), help="panel labels")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--json", default="planning_error.json")
+    args = ap.parse_args()
+    bad = [d for d in args.drivers if d not in PANEL]
+    if bad:
+        ap.error(f"unknown driver {bad[0]!r}; choose from {', '.join(PANEL)}")
+    jobs = [PanelJob(d, t, r, 1000 + r, m, samples=args.samples)
+            for m in ("explore", "oracle", "retime@true") for d, t, r in product(args.drivers, TOWNS, range(args.routes))]
+    jobs += [PanelJob(d, t, r, 1000 + r, "paper@true", samples=args.samples)
+             for d, t, r in product(args.drivers, TOWNS, range(args.paper_routes))]
+    episodes = []
+    with ProcessPoolExecutor(args.workers) as pool:
+        futures = [pool.submit(drive_panel_episode, j) for j in jobs]
+        for f in tqdm(as_completed(futures), total=len(futures), desc="episodes"):
+            episodes.append(f.result())
+            with open(args.json, "w") as fh:
+                json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, fh, indent=1)
+    print(table(episodes))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,181 @@
+"""The long-horizon planner, the true-dynamics world model, branching, and the paired statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+
+from pernav.diagnostics import TrueDynamicsEnv
+from pernav.diagnostics.stats import bootstrap_ci, gap_closed, paired_difference
+from pernav.env.navigation import NavigationEnv
+from pernav.model import DynamicsModel
+from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.planner import RetimingPlanner, TreeSearchPlanner, build_planner, candidate_plans
+from pernav.study.compare import compare
+from pernav.world.cost import tracking_cost
+
+
+def _live(steps: int = 25, town: str = "Town1", route: int = 0, seed: int = 3) -> tuple[NavigationEnv, dict]:
+    env = NavigationEnv(town, config={"n_traffic": 3})
+    _, info = env.reset(seed=seed, options={"route": route, "user": "user3"})
+    for _ in range(steps):
+        *_, info = env.step(info["explore_action"])
+    return env, info
+
+
+def test_branch_replays_the_original_exactly_and_a_seeded_branch_does_not_share_its_draws():
+    env, info = _live()
+    twin, other = env.branch(), env.branch(seed=7)
+    for _ in range(40):
+        a = info["explore_action"]
+        _, r, *_, info = env.step(a)
+        assert twin.step(a)[1] == r
+        other.step(a)
+    assert np.array_equal(env.world.ego.position, twin.world.ego.position)
+    assert env.world.driver_rng.random() != other.world.driver_rng.random()
+
+
+def test_true_model_prefix_sharing_equals_independent_rollouts():
+    env, _ = _live()
+    seqs = torch.tensor([[0, 0, 4, 4, 2, 2], [0, 4, 4, 2, 2, 2], [0, 0, 4, 4, 4, 4], [2, 2, 2, 2, 2, 2]])
+    pos, goal = TrueDynamicsEnv(env, samples=1, seed=11).imagine(None, seqs)
+    seed = int(np.random.default_rng(11).integers(2**31 - 1))  # the first copy's seed
+    for n, seq in enumerate(seqs.tolist()):
+        copy = env.branch(seed)
+        for h, a in enumerate(seq):
+            copy.advance(a)
+            assert np.allclose(pos[0, n, h].numpy(), copy.world.ego.position, atol=1e-4)
+            assert np.allclose(goal[0, n, h].numpy(), copy.goal, atol=1e-4)
+
+
+def test_true_model_is_a_torchrl_env_of_any_batch_size():
+    env, _ = _live(steps=5)
+    true = TrueDynamicsEnv(env, samples=1)
+    td = true.rollout(3, auto_reset=False, tensordict=true.reset(TensorDict({}, [4])), break_when_any_done=False)
+    assert td.shape == (4, 3) and td["next", "observation"].shape == (4, 3, 14)
+    with pytest.raises(ValueError, match="samples"):
+        TrueDynamicsEnv(env, samples=0)
+
+
+def test_candidate_plans_are_explore_re_timed_unique_and_explore_is_one_of_them():
+    future = torch.tensor([0, 0, 4, 4, 2, 2, 0, 0, 0, 0])
+    seqs, e = candidate_plans(future, last=0, allowed=torch.tensor([0, 2, 4]), horizon=5, advance=3, delay=2)
+    rows = seqs.tolist()
+    assert rows[e] == [0, 0, 4, 4, 2]
+    assert len({tuple(r) for r in rows}) == len(rows)
+    for k in range(1, 4):
+        assert future[k:k + 5].tolist() in rows  # advanced by k
+    assert [0, 0, 0, 4, 4] in rows and [0, 0, 0, 0, 4] in rows  # delayed by 1, 2
+    assert [2] * 5 in rows and [4] * 5 in rows  # the fine choices now (a prompt is within reach)
+    far, _ = candidate_plans(torch.zeros(10, dtype=torch.long).index_fill(0, torch.tensor([9]), 2), 0,
+                             torch.tensor([0, 2]), 5, 3, 2)
+    assert not (far[:, 0] != 0).any()  # nothing due within reach: no prompt now
+
+
+def _root(n_actions: int = 7) -> TensorDict:
+    g = torch.Generator().manual_seed(0)
+    hist = torch.randn(5, 14 + n_actions, generator=g)
+    return TensorDict({"history": hist, "explore_future": torch.tensor([0, 4, 4, 2, 2, 0, 0, 0, 0, 0]),
+                       "route_ahead": torch.randn(20, 2, generator=g) * 10,
+                       "action_mask": torch.ones(5, n_actions, dtype=torch.bool)}, [])
+
+
+@torch.no_grad()
+def test_retiming_cost_equals_a_brute_force_rollout_of_each_sequence():
+    torch.manual_seed(0)
+    model = DynamicsModel(hidden=(16,))
+    planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(model)), horizon=4, advance=2, delay=1)
+    root = _root()
+    seqs, _ = candidate_plans(root["explore_future"], 0, torch.arange(7), 4, 2, 1)
+    cost = planner.costs(root, seqs)[0]
+    route = root["route_ahead"]
+    for n, seq in enumerate(seqs.tolist()):
+        hist, goal, total = root["history"].unsqueeze(0), root["history"][-1, 9:11], 0.0
+        for a in seq:
+            state = model(hist, torch.tensor([a]))
+            hist = model.next_window(hist, torch.tensor([a]), state)
+            d = (route - state[0, :2]).norm(dim=-1)
+            total += float(tracking_cost(state[0, :2], goal)) + float(d.min()) ** 2
+            goal = state[0, 9:11]
+        total -= 3.0 * int(d.argmin())
+        assert cost[n].item() == pytest.approx(total, rel=1e-4, abs=1e-3)
+
+
+def test_retiming_planner_keeps_explore_unless_the_gain_is_clear():
+    torch.manual_seed(0)
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,))))
+    root = _root()
+    stubborn = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=1e12)
+    action, result = stubborn.decide(root)
+    assert action == int(root["explore_future"][0]) and result.chosen == result.explore
+    eager = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    action, result = eager.decide(root)
+    assert result.chosen == int(result.costs.argmin())  # no margin: the cheapest candidate
+    assert eager(root.unsqueeze(0).expand(3))["action"].shape == (3,)
+
+
+def test_retiming_planner_with_21_actions_plans_every_playback():
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(n_actions=21, hidden=(8,))))
+    planner = RetimingPlanner(env, horizon=3, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    action, result = planner.decide(_root(21))
+    assert 0 <= action < 21 and {int(a) % 3 for a in result.candidates[:, 0] if a >= 3} == {0, 1, 2}
+
+
+def test_paper_planner_on_the_true_model_matches_its_tree_on_a_deterministic_copy():
+    env, info = _live()
+    true = TrueDynamicsEnv(env, samples=1)
+    planner = TreeSearchPlanner(true, horizon=3, shift=2)
+    root = TensorDict({"observation": torch.as_tensor(env._observation()),
+                       "history": torch.as_tensor(env._observation()).expand(5, 14).clone(),
+                       "plan_goals": torch.as_tensor(info["plan_goals"]), "explore_plan": torch.as_tensor(info["explore_plan"]),
+                       "action_mask": torch.as_tensor(info["action_mask"])}, [])
+    root["history"] = torch.cat([root["history"], torch.zeros(5, 7)], -1)
+    assert 0 <= int(planner(root)["action"]) < 7 and planner.last[0].evaluations >= 3
+
+
+def test_build_planner_rejects_unknown_kinds_and_options():
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
+    assert isinstance(build_planner(env, {}), RetimingPlanner)
+    with pytest.raises(ValueError, match="unknown planner kind 'cem'"):
+        build_planner(env, {"kind": "cem"})
+    with pytest.raises(ValueError, match="unknown retime planner option 'bonus'"):
+        build_planner(env, {"kind": "retime", "bonus": 1.0})
+
+
+def test_bootstrap_intervals_cover_the_mean_and_pairs_must_match():
+    rng = np.random.default_rng(0)
+    x = rng.normal(5.0, 1.0, 200)
+    mean, lo, hi = bootstrap_ci(x)
+    assert lo < 5.0 < hi and hi - lo < 0.5
+    d = paired_difference(x + 1.0, x)
+    assert d["mean"] == pytest.approx(1.0) and d["low"] == pytest.approx(1.0)
+    with pytest.raises(ValueError, match="paired"):
+        paired_difference([1.0, 2.0], [1.0])
+    g = gap_closed([10.0, 12.0, 11.0], [6.0, 7.0, 6.5], [2.0, 2.0, 2.0])
+    assert g["low"] <= g["mean"] <= g["high"] and g["mean"] == pytest.approx(0.5)
+    assert np.isnan(gap_closed([1.0], [1.0], [2.0])["mean"])  # no gap: nothing to close
+
+
+def test_compare_pools_rounds_and_separates_rounds_without_headroom():
+    def rnd(explore: float, method: float, oracle: float) -> dict:
+        ep = lambda c: {"tracking_cost": c, "collisions": 0, "missed_turns": 0, "extra_distance": 0.0}  # noqa: E731
+        return {"phase": "online", "towns": {"T": {m: {"episodes": [ep(c), ep(c + 2)]} for m, c in
+                                                  (("explore", explore), ("adapt", method), ("oracle", oracle))}}}
+
+    out = compare([[rnd(100.0, 60.0, 20.0)], [rnd(100.0, 104.0, 98.0)]])["T"]["adapt"]
+    assert out["rounds"] == 2 and out["headroom_rounds"] == 1
+    assert out["gap_closed_headroom"]["mean"] == pytest.approx(0.5)
+    assert out["relative_cost_no_headroom"] == pytest.approx(105.0 / 101.0)
+
+
+def test_extra_distance_is_zero_on_a_clean_drive_and_never_negative():
+    env = NavigationEnv("Town1", config={"n_traffic": 0})
+    _, info = env.reset(seed=0, options={"route": 0, "user": "user7"})
+    done = False
+    while not done:
+        _, _, te, tr, info = env.step(info["explore_action"])
+        done = te or tr
+        assert info["extra_distance"] >= 0.0
+    assert info["completed"] and info["missed_turns"] == 0 and info["extra_distance"] < 10.0
