@@ -53,7 +53,8 @@ def table(episodes: list[dict]) -> str:
         def total(key: str, src: dict, keys: list = keys) -> float:
             return sum(src[k][key] for k in keys)
 
-        lines.append(f"| {method} | {len(keys)} | {np.mean(cost):.0f} | {d['mean']:+.0f} [{d['low']:+.0f}, {d['high']:+.0f}] "
+        lines.append(f"| {method} | {len(keys)} | {np.mean(cost):.0f} | {d['mean']:+.0f} "
+                     f"[{d['low']:+.0f}, {d['high']:+.0f}] "
                      f"| {g['mean']:.0%} [{g['low']:.0%}, {g['high']:.0%}] | {total('collisions', eps):.0f} "
                      f"({total('collisions', by['explore']):.0f}) | {total('missed_turns', eps):.0f} "
                      f"({total('missed_turns', by['explore']):.0f}) | {total('extra_distance', eps):.0f} "

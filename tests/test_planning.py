@@ -129,7 +129,8 @@ def test_paper_planner_on_the_true_model_matches_its_tree_on_a_deterministic_cop
     planner = TreeSearchPlanner(true, horizon=3, shift=2)
     root = TensorDict({"observation": torch.as_tensor(env._observation()),
                        "history": torch.as_tensor(env._observation()).expand(5, 14).clone(),
-                       "plan_goals": torch.as_tensor(info["plan_goals"]), "explore_plan": torch.as_tensor(info["explore_plan"]),
+                       "plan_goals": torch.as_tensor(info["plan_goals"]),
+                       "explore_plan": torch.as_tensor(info["explore_plan"]),
                        "action_mask": torch.as_tensor(info["action_mask"])}, [])
     root["history"] = torch.cat([root["history"], torch.zeros(5, 7)], -1)
     assert 0 <= int(planner(root)["action"]) < 7 and planner.last[0].evaluations >= 3

@@ -4,4 +4,5 @@ from pernav.planner.factory import PLANNER_DEFAULTS, PLANNER_KINDS, build_planne
 from pernav.planner.retiming import RetimingPlanner, RetimingResult, candidate_plans
 from pernav.planner.tree_search import PlanResult, TreeSearchPlanner
 
-__all__ = ["PLANNER_DEFAULTS", "PLANNER_KINDS", "PlanResult", "RetimingPlanner", "RetimingResult", "TreeSearchPlanner", "build_planner", "candidate_plans"]
+__all__ = ["PLANNER_DEFAULTS", "PLANNER_KINDS", "PlanResult", "RetimingPlanner", "RetimingResult",
+           "TreeSearchPlanner", "build_planner", "candidate_plans"]

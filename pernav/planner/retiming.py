@@ -49,7 +49,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
+from pernav.model.dynamics import GX, GY, STATE_DIM
 from pernav.world.cost import tracking_cost
 
 __all__ = ["RetimingPlanner", "RetimingResult", "candidate_plans"]
