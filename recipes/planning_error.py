@@ -13,7 +13,7 @@ With ``--study DIR`` it adds ``retime@learned`` with each learner's final model 
 error. Paired differences to explore carry 95 % bootstrap CIs. Results are written as jobs finish.
 
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
-[--samples 1] [--workers 2] [--json docs/figures/planning_error.json]
+[--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ import json
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from itertools import product
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -70,6 +71,7 @@ def main() -> None:
     ap.add_argument("--drivers", nargs="*", default=list(PANEL), help="panel labels")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", default="planning_error.json")
+    ap.add_argument("--resume", action="store_true", help="keep the episodes already in --json")
     args = ap.parse_args()
     bad = [d for d in args.drivers if d not in PANEL]
     if bad:
@@ -79,6 +81,10 @@ def main() -> None:
     jobs += [PanelJob(d, t, r, 1000 + r, "paper@true", samples=args.samples)
              for d, t, r in product(args.drivers, TOWNS, range(args.paper_routes))]
     episodes = []
+    if args.resume and Path(args.json).is_file():  # keep finished episodes, run only the missing ones
+        episodes = json.loads(Path(args.json).read_text())["episodes"]
+        done = {(e["driver"], e["town"], e["route"], e["seed"], e["method"]) for e in episodes}
+        jobs = [j for j in jobs if (j.driver, j.town, j.route, j.seed, j.method) not in done]
     with ProcessPoolExecutor(args.workers) as pool:
         futures = [pool.submit(drive_panel_episode, j) for j in jobs]
         for f in tqdm(as_completed(futures), total=len(futures), desc="episodes"):
