@@ -359,13 +359,16 @@ class NavigationEnv(gym.Env):
         H, S = int(self.config["plan_horizon"]), int(self.config["plan_shift"])
         view = self.nav_view()
         speed = float(self.world.ego.speed)
-        plan = explore_plan(self._explore, view, self._explore_past, H, S)
+        F = int(self.config["future_steps"])
+        # one imagined explore future serves both the paper planner's shifted plan and the re-timing planner
+        full = explore_plan(self._explore, view, self._explore_past, max(H, F - S), S)
+        plan, future = full[: H + 2 * S], full[S: S + F]
         playbacks = 3 if self.config["adaptive_speed"] else 1
         return {
             "plan_goals": plan_goals(self.route, self.progress, speed, H),
             "explore_plan": plan,
             "action_mask": action_mask(self.route, self.progress, speed, in_roundabout, plan, H, S, playbacks),
-            "explore_future": explore_plan(self._explore, view, [], int(self.config["future_steps"]), 0),
+            "explore_future": future,
             "route_ahead": route_ahead(self.route, self.progress, int(self.config["route_points"])),
         }
 

@@ -136,7 +136,7 @@ class RetimingPlanner(MPCPlannerBase):
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
-        start_goal = root["history"][-1, [GX, GY]].float() if "history" in root.keys() else goal[:, :, 0]
+        start_goal = root["history"][-1, [GX, GY]].float()
         prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
         cost = tracking_cost(pos, prev).sum(-1)
         route = root["route_ahead"].float()  # [P, 2]
