@@ -176,16 +176,27 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     steps21 = steps21.select(*keys)
     beam(steps21[0].clone())
     beam_t = [_timed(beam, steps21[i].clone())[0] for i in range(steps21.shape[0])]
-    # (5) the default re-timing planner (horizon 12) on the same recorded states, searched decisions only
-    retime = RetimingPlanner(ImaginedNavigationEnv(make_world_model(model)))
+    # (5) the default re-timing planner as the default study deploys it (horizon 12, an ensemble of the default
+    # preset's models, all members imagined at once) on states recorded with that preset's history length
+    from pernav.model.adapt import meta_parameters
+    from pernav.study.config import preset
+
+    train = preset("default").train
+    data_k = data if train.K == 5 else _recorded_states(routes, fast, K=train.K)
+    members = [DynamicsModel(K=train.K, hidden=train.hidden) for _ in range(train.ensemble)]
+    for m in members:
+        m.fit_normalization(data_k["history"], data_k["action"], data_k["next", "observation"])
+    retime = RetimingPlanner(ImaginedNavigationEnv(make_world_model(members[0])))
+    retime.params = [meta_parameters(m).detach() for m in members]
     retime_t = []
     for i in range(steps.shape[0]):
         before = retime.decisions
-        t, _ = _timed(retime, data[i * data.shape[0] // steps.shape[0]].select(*retime.in_keys).clone())
+        t, _ = _timed(retime, data_k[i * data_k.shape[0] // steps.shape[0]].select(*retime.in_keys).clone())
         if retime.decisions > before:  # a decision with a choice (elsewhere it plays explore at once)
             retime_t.append(t)
     ratio = statistics.median(level_t) / statistics.median(flat_t)
     return {
+        "retime_model": f"{train.ensemble} x MLP {list(train.hidden)}, K={train.K}",
         "retime_searched_states": len(retime_t),
         "retime_ms_median": _median_ms(retime_t) if retime_t else None,
         "retime_ms_p95": _p95_ms(retime_t) if retime_t else None,

@@ -28,7 +28,7 @@ import torch
 from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module
-from pernav.model.adapt import adapt
+from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.trainer.buffers import RoundBuffers
@@ -39,25 +39,25 @@ from pernav.world.drivers import Context
 DELAY, STEPS = 3, (5, 10)
 
 
-def load_meta(study: Path, town: str) -> DynamicsModel:
+def load_meta(study: Path, town: str) -> tuple[DynamicsModel, list]:
+    """adapt's final meta model from a study's checkpoint: the module and every ensemble member's state."""
     manifest = json.loads((study / "checkpoints" / town / "manifest.json").read_text())
     state = torch.load(study / "checkpoints" / town / manifest["folder"] / "state.pt", weights_only=False)
-    learner = state["learners"]["adapt"]
-    model = DynamicsModel(**learner["model_config"])
-    model.load_state_dict(learner["model"])
-    return model
+    members = state["learners"]["adapt"]["members"]
+    model = DynamicsModel(**members[0]["model_config"])
+    return model, [member["model"] for member in members]
 
 
-def driver_env(driver: str, town: str, route: int, seed: int):
+def driver_env(driver: str, town: str, route: int, seed: int, K: int):
     user, context = PANEL[driver]
     return history_env(town, {"route": route, "user": user, "context": Context(**context)},
-                       config={"n_traffic": 4}, seed=seed)
+                       config={"n_traffic": 4}, seed=seed, K=K)
 
 
 def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsModel:
     buffers = RoundBuffers(L=5, seed=0)
     for k in range(6):
-        buffers.add(0, drive(driver_env(driver, town, k % 10, 500 + k), explore_module()), tau=(k == 0))
+        buffers.add(0, drive(driver_env(driver, town, k % 10, 500 + k, like.K), explore_module()), tau=(k == 0))
     model = DynamicsModel(**like.config())
     trainer = FTMLTrainer(model, buffers, TrainConfig(updates=50, batch=128, warm_updates=300), seed=0)
     trainer.fit_normalization()
@@ -69,7 +69,7 @@ def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2
     """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's)."""
     out: dict[str, list] = {"true": [], **{k: [] for k in models}}
     for ep in range(episodes):
-        env = driver_env(driver, town, ep, 900 + ep)
+        env = driver_env(driver, town, ep, 900 + ep, next(iter(models.values()))[0].dynamics.K)
         td = env.reset()
         nav = env.base_env._env
         for _t in range(400):
@@ -83,8 +83,8 @@ def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2
                 idx = [s - 1 for s in STEPS]
                 out["true"].append((pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
                 for name, (env_m, params) in models.items():
-                    p, _ = env_m.imagine(td, pair, params=params)
-                    out[name].append((p[0, 0] - p[0, 1]).norm(dim=-1)[idx].numpy())
+                    p, _ = env_m.imagine(td, pair, params=params)  # [M, 2, H, 2]: the members' mean
+                    out[name].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
             td = env.step(explore_module()(td))
             if bool(td["next", "done"]):
                 break
@@ -104,14 +104,18 @@ def main() -> None:
     if not (study / "checkpoints" / args.town / "manifest.json").is_file():
         print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
         sys.exit(2)
-    meta = load_meta(study, args.town)
+    meta, members = load_meta(study, args.town)
     rows = {}
     for driver in args.drivers:
-        tau = drive(driver_env(driver, args.town, 7, 77), explore_module())
-        adapted = adapt(meta, tau, alpha=0.01, L=5, first_order=True).detach()
+        tau = drive(driver_env(driver, args.town, 7, 77, meta.K), explore_module())
+        params, adapted = [], []
+        for state in members:  # U(P, tau) of every member, as the study adapts
+            meta.load_state_dict(state)
+            params.append(meta_parameters(meta).detach().clone())
+            adapted.append(adapt(meta, tau, alpha=0.01, L=5, first_order=True).detach())
         own = per_driver_model(driver, args.town, meta)
-        models = {"meta": (ImaginedNavigationEnv(make_world_model(meta)), None),
-                  "adapted": (ImaginedNavigationEnv(make_world_model(meta)), [adapted]),
+        imagined = ImaginedNavigationEnv(make_world_model(meta))
+        models = {"meta": (imagined, params), "adapted": (imagined, adapted),
                   "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
         div = approach_divergences(driver, args.town, models)
         rows[driver] = {"states": int(div["true"].shape[0]), "true_mean": div["true"].mean(0).round(2).tolist()}

@@ -89,7 +89,7 @@ def test_retiming_cost_equals_a_brute_force_rollout_of_each_sequence():
     planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(model)), horizon=4, advance=2, delay=1)
     root = _root()
     seqs, _ = candidate_plans(root["explore_future"], 0, torch.arange(7), 4, 2, 1)
-    cost = planner.costs(root, seqs)[0]
+    cost = planner.costs(root, seqs)[0][0]
     route = root["route_ahead"]
     for n, seq in enumerate(seqs.tolist()):
         hist, goal, total = root["history"].unsqueeze(0), root["history"][-1, 9:11], 0.0
@@ -114,6 +114,26 @@ def test_retiming_planner_keeps_explore_unless_the_gain_is_clear():
     action, result = eager.decide(root)
     assert result.chosen == int(result.costs.argmin())  # no margin: the cheapest candidate
     assert eager(root.unsqueeze(0).expand(3))["action"].shape == (3,)
+
+
+def test_retiming_planner_stays_with_explore_where_the_ensemble_disagrees():
+    from pernav.model.adapt import meta_parameters
+
+    torch.manual_seed(0)
+    members = [DynamicsModel(hidden=(16,)) for _ in range(2)]
+    env = ImaginedNavigationEnv(make_world_model(members[0]))
+    root = _root()
+    eager = {"horizon": 4, "advance": 2, "delay": 1, "margin": -1e12, "rel_margin": 0.0, "agree": 1e-9}
+    confident = RetimingPlanner(env, max_spread=None, **eager)
+    cautious = RetimingPlanner(env, max_spread=1e-6, **eager)
+    for planner in (confident, cautious):
+        planner.params = [meta_parameters(m).detach() for m in members]
+    _, free = confident.decide(root)
+    _, held = cautious.decide(root)
+    assert free.chosen != free.explore  # with no spread test the cheapest candidate wins
+    assert held.chosen == held.explore  # two random members disagree by far more than a micrometre
+    _, one = RetimingPlanner(env, max_spread=1e-6, **eager).decide(root)  # one row: spread 0, no test
+    assert one.chosen == int(one.costs.argmin())
 
 
 def test_retiming_planner_with_21_actions_plans_every_playback():

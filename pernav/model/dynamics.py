@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
+from tensordict import TensorDictBase
 from torch import nn
 from torchrl.modules import MLP
 
@@ -148,6 +149,31 @@ class DynamicsModel(nn.Module):
         """Next state ``[..., 14]`` after taking ``action`` with window ``history``."""
         window = self.with_action(history, action)
         return apply_delta(history[..., -1, : self.state_dim], self.delta(window))
+
+    def ensemble_forward(self, history: torch.Tensor, action: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
+        """:meth:`forward` of ``E`` members at once: ``history`` ``[E, N, K, W]``, ``action`` ``[N]`` or
+        ``[E, N]``, ``params`` the members' parameters stacked (``torch.stack`` of ``TensorDict.from_module``
+        layouts, batch ``[E]``); returns ``[E, N, 14]``, equal to running each member in turn. The window
+        transforms run once on the whole batch and the MLP layers as batched matrix products, so an
+        ensemble costs about one model's time per imagined step (the planner's decision time).
+
+        >>> from tensordict import TensorDict
+        >>> m = DynamicsModel(hidden=(8,))
+        >>> p = torch.stack([TensorDict.from_module(m).detach()] * 2)
+        >>> m.ensemble_forward(torch.zeros(2, 3, 5, 21), torch.zeros(3, dtype=torch.long), p).shape
+        torch.Size([2, 3, 14])
+        """
+        E = params.shape[0]
+        window = self.with_action(history, action.expand(history.shape[:-2]))
+        x = (self.features(window) - params["in_mean"].unsqueeze(1)) / params["in_std"].unsqueeze(1)  # [E, N, F]
+        for name, layer in self.net.named_children():
+            if isinstance(layer, nn.Linear):
+                weight, bias = params["net", name, "weight"], params["net", name, "bias"]
+                x = torch.baddbmm(bias.reshape(E, 1, -1), x, weight.transpose(1, 2))
+            else:
+                x = layer(x)
+        delta = x * params["out_std"].unsqueeze(1) + params["out_mean"].unsqueeze(1)
+        return apply_delta(history[..., -1, : self.state_dim], delta)
 
     def next_window(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
         """``history`` shifted by one step: ``action`` recorded, ``(next_state, 0)`` appended."""

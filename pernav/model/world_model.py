@@ -99,6 +99,16 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         torch.Size([1, 3, 4, 2])
         """
         N, H = sequences.shape
+        if params and len(params) > 1 and all(p is not None for p in params):  # an ensemble: all members at once
+            stacked = torch.stack(list(params))
+            hist = root["history"].float().expand(len(params), N, *root["history"].shape).clone()
+            pos, goal = [], []
+            for h in range(H):
+                state = self.dynamics.ensemble_forward(hist, sequences[:, h], stacked)
+                hist = self.dynamics.next_window(hist, sequences[:, h].expand(hist.shape[:2]), state)
+                pos.append(state[..., [X, Y]])
+                goal.append(state[..., [GX, GY]])
+            return torch.stack(pos, 2), torch.stack(goal, 2)
         positions, goals = [], []
         for member in params if params else [None]:
             hist = root["history"].float().expand(N, *root["history"].shape).clone()

@@ -22,8 +22,9 @@ The first term is the env's own step cost; the second makes a missed turn or a c
 inside the horizon (the env re-routes after a miss, so its goals alone would forgive it); the third keeps
 stopping from looking cheap. The planner leaves explore only where the imagined gain is clear: the best
 candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` (relative) on average and in
-at least ``agree`` of the rows (ensemble members or samples); otherwise it plays explore's action. So a poor
-or uncertain model costs little.
+at least ``agree`` of the rows (ensemble members or samples), and the rows must agree on what the re-timing
+does to the car's path (the spread of its effect, at most ``max_spread`` metres); otherwise it plays
+explore's action. So a poor or uncertain model costs little.
 
 Reads ``"history"``, ``"explore_future"`` ``[F]``, ``"route_ahead"`` ``[P, 2]`` and ``"action_mask"`` (the
 navigation env provides them, :mod:`pernav.env.planning`); writes ``"action"``.
@@ -64,6 +65,7 @@ class RetimingResult:
     explore: int
     chosen: int
     gain: float  # explore's cost minus the chosen one's (0 when explore is kept)
+    spread: torch.Tensor | None = None  # [N] the rows' disagreement (m) on each candidate's effect
 
 
 def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, horizon: int, advance: int,
@@ -103,12 +105,15 @@ class RetimingPlanner(MPCPlannerBase):
         progress_weight: reward per metre of route progress at the horizon.
         margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
         agree: fraction of the rows (ensemble members, samples) that must each see a gain.
+        max_spread: metres; leave explore only for a candidate whose effect (its positions minus explore's plan's)
+            the rows agree on within this mean distance over the horizon (:meth:`effect_spread`; ``None``: no
+            such test). With one row (one model, or one true-model sample) the spread is 0.
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 3, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 playbacks: int | None = None) -> None:
+                 max_spread: float | None = 2.0, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -117,6 +122,7 @@ class RetimingPlanner(MPCPlannerBase):
         self.horizon, self.advance, self.delay = int(horizon), int(advance), int(delay)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.margin, self.rel_margin, self.agree = float(margin), float(rel_margin), float(agree)
+        self.max_spread = None if max_spread is None else float(max_spread)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -131,8 +137,9 @@ class RetimingPlanner(MPCPlannerBase):
             return seqs, 1
         return torch.cat([seqs * 3 + p for p in (1, 0, 2)]), 3  # normal first: explore's is row 0 of its block
 
-    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> torch.Tensor:
-        """``[M, N]`` cost of each sequence for each row of the env's imagination."""
+    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``[M, N]`` cost of each sequence for each row of the env's imagination, and the imagined positions
+        ``[M, N, H, 2]``."""
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
@@ -143,7 +150,15 @@ class RetimingPlanner(MPCPlannerBase):
         d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
         dist, nearest = d.min(-1)
         cost = cost + self.route_weight * (dist ** 2).sum(-1)
-        return cost - self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype)  # ROUTE_SPACING m per point
+        return cost - self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype), pos  # 3 m per route point
+
+    @staticmethod
+    def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
+        """``[N]``: how much the rows disagree on each candidate's *effect*, its positions minus explore's
+        plan's: the largest (over the horizon) mean distance of the rows' effects from their mean. Errors the
+        rows share for every candidate (e.g. the car's speed in traffic) cancel; 0 for explore and one row."""
+        effect = pos - pos[:, explore:explore + 1]  # [M, N, H, 2]
+        return (effect - effect.mean(0)).norm(dim=-1).mean(0).amax(-1)
 
     @torch.no_grad()
     def decide(self, root: TensorDictBase) -> tuple[int, RetimingResult | None]:
@@ -159,19 +174,22 @@ class RetimingPlanner(MPCPlannerBase):
         explore_action = int(seqs[explore, 0])
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None
-        cost = self.costs(root, seqs)  # [M, N]
+        cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
+        spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
         gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
         need = self.margin + self.rel_margin * mean[explore].abs()
         ok = (gain.mean(0) > need) & ((gain > 0).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
+        if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
+            ok &= spread <= self.max_spread
         self.decisions += 1
         if bool(ok.any()):
             chosen = int(torch.where(ok, mean, torch.full_like(mean, float("inf"))).argmin())
             self.departures += int(int(seqs[chosen, 0]) != explore_action)
         else:
             chosen = explore
-        result = RetimingResult(seqs, mean, explore, chosen, float(mean[explore] - mean[chosen]))
+        result = RetimingResult(seqs, mean, explore, chosen, float(mean[explore] - mean[chosen]), spread)
         return int(seqs[chosen, 0]), result
 
     def planning(self, td: TensorDictBase) -> torch.Tensor:

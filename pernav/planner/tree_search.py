@@ -99,7 +99,9 @@ class TreeSearchPlanner(MPCPlannerBase):
         self.playbacks = playbacks or (3 if self.n_actions == 21 else 1)
         self.horizon, self.shift = int(horizon), int(shift)
         self.bonus, self.penalty, self.mask, self.beam = float(bonus), float(penalty), bool(mask), beam
-        self.params: TensorDictBase | None = None  # adapted parameters to plan with (None: the model's own)
+        # adapted parameters to plan with (None: the model's own); of an ensemble's list, the paper's planner
+        # uses the first member (the paper plans with one model)
+        self.params: list[TensorDictBase] | TensorDictBase | None = None
         self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
         self.last: list[PlanResult] = []
         self.nonfinite = 0  # decisions where some imagined cost was NaN/Inf
@@ -222,7 +224,8 @@ class TreeSearchPlanner(MPCPlannerBase):
         t0 = time.perf_counter()
         flat = td.reshape(-1)
         actions, self.last = [], []
-        with using(self.model, self.params) if self.model is not None else nullcontext():
+        params = self.params[0] if isinstance(self.params, list) else self.params
+        with using(self.model, params) if self.model is not None else nullcontext():
             for i in range(flat.shape[0]):
                 row = flat[i]
                 if self.model is None:

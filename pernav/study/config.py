@@ -78,7 +78,7 @@ def _smoke() -> StudyConfig:
     return StudyConfig(
         preset="smoke", towns=["Town1"], schedule=_select(["Offline 0", "Online 0", "Online 8"]),
         routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
-        train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2),
+        train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2, ensemble=2),
         planner={"kind": "retime"})
 
 
@@ -90,7 +90,10 @@ def _default() -> StudyConfig:
     return StudyConfig(
         preset="default", towns=["Town1", "Town3"], schedule=_select(labels),
         routes=3, rollouts=2, offline_trajectories=3, n_traffic=4,
-        train=TrainConfig(updates=50, batch=128, warm_updates=300, rounds_per_update=2))
+        # three smaller models rather than one large: the planner leaves explore only where all three agree;
+        # a 10-step history spans a prompt, the driver's reaction and the turn (memory is 8-30 s)
+        train=TrainConfig(updates=50, batch=128, warm_updates=300, rounds_per_update=2, hidden=[128, 128], K=10,
+                          ensemble=3))
 
 
 def _paper() -> StudyConfig:

@@ -33,7 +33,6 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
-from pernav.model.adapt import adapt
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
@@ -43,7 +42,7 @@ from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
-from pernav.trainer.ftml import FTMLTrainer
+from pernav.trainer.ensemble import EnsembleTrainer
 
 __all__ = ["CheckpointError", "run_town"]
 
@@ -57,19 +56,20 @@ class Learner:
     def __init__(self, name: str, cfg: StudyConfig, town: str) -> None:
         self.name = name
         self.n_actions = LEARNERS.get(name, 7)
-        torch.manual_seed(derive_seed(cfg.seed, town, "init", 21 if self.n_actions == 21 else 7))
-        self.model = DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden)
         self.buffers = RoundBuffers(L=cfg.train.L, seed=derive_seed(cfg.seed, town, name, "buffers"))
-        self.trainer = FTMLTrainer(self.model, self.buffers, cfg.train, seed=derive_seed(cfg.seed, town, name))
+        self.trainer = EnsembleTrainer(
+            lambda: DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden), self.buffers,
+            cfg.train, size=cfg.train.ensemble, seed=derive_seed(cfg.seed, town, "init", 21 if self.n_actions == 21 else 7))
+        self.model = self.trainer.model
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(self.model)), cfg.planner, self.n_actions)
         self.meta = name != "sysid"
 
     def adapted(self, tau: Any, cfg: StudyConfig) -> Any:
-        if not self.meta:
+        """The parameters the planner uses this round: every member's, adapted on ``tau`` for meta learners;
+        ``None`` (the model's own) for a single sysid model."""
+        if not self.meta and cfg.train.ensemble == 1:
             return None
-        with torch.enable_grad():
-            params = adapt(self.model, tau, alpha=cfg.train.alpha, L=cfg.train.L, first_order=True)
-        return params.detach()
+        return self.trainer.parameters(tau, adapted=self.meta, alpha=cfg.train.alpha)
 
     def add(self, round_: int, trajectory: Any, tau: bool = False) -> None:
         data = to_speed_actions(trajectory) if self.n_actions == 21 else trajectory

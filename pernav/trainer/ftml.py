@@ -36,7 +36,7 @@ from typing import Any
 
 import torch
 
-from pernav.model.adapt import adapt
+from pernav.model.adapt import adapt, trajectory_windows
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
@@ -59,7 +59,8 @@ class TrainConfig:
     rounds_per_update: int = 4  # rounds sampled per meta update (the batch is split among them)
     warm_updates: int = 300  # plain updates of the offline warm start (Eq. 1)
     hidden: list[int] = field(default_factory=lambda: [256, 256, 256])
-    K: int = 5
+    K: int = 5  # history window (steps) the model reads
+    ensemble: int = 1  # dynamics models trained side by side (the planner's uncertainty)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -141,15 +142,31 @@ class FTMLTrainer:
 
     # ----- evaluation -----------------------------------------------------------------------------
     @torch.no_grad()
-    def round_loss(self, round_: int, adapted: bool, windows: int = 256) -> float:
-        """L-step loss on a round's data, with or without adapting on its tau first (for regret curves)."""
+    def round_loss(self, round_: int, adapted: bool) -> float:
+        """Held-out L-step loss on a round (for regret curves and the adaptation check), with or without
+        adapting on its ``tau`` first: every transition of the round's *other* trajectories predicted once
+        (windows tiling each trajectory; no sampling, so the figure is exact). A round that holds only its
+        ``tau`` is scored on ``tau`` itself (then it is not held out)."""
         params = None
+        tau = self.buffers.tau(round_)
         if adapted:
             with torch.enable_grad():
-                params = adapt(self.model, self.buffers.tau(round_), alpha=self.config.alpha, L=self.config.L,
-                               first_order=True)
+                params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True)
             params = params.detach()
-        return float(multistep_loss(self.model, self.buffers.sample(round_, windows), params=params))
+        data = self.buffers.data(round_)
+        held_out = data[data["traj"] != tau["traj"][0]]
+        source = held_out if held_out.shape[0] else tau
+        windows = [trajectory_windows(source[source["traj"] == t], self.config.L, self.config.L)
+                   for t in torch.unique(source["traj"]).tolist()]
+        by_length: dict[int, list] = {}  # a trajectory shorter than L gives one shorter window
+        for w in windows:
+            by_length.setdefault(w.shape[1], []).append(w)
+        total, count = 0.0, 0
+        for group in by_length.values():
+            batch = torch.cat(group)
+            total += float(multistep_loss(self.model, batch, params=params)) * batch.shape[0]
+            count += batch.shape[0]
+        return total / count
 
     # ----- checkpoints ----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

@@ -1,0 +1,111 @@
+"""An ensemble of dynamics models trained side by side on one data stream (the planner's uncertainty).
+
+Each member is a :class:`~pernav.model.DynamicsModel` of the same architecture with its own initialization,
+its own :class:`~pernav.trainer.ftml.FTMLTrainer` (Adam state, sampling generator) and so its own batches; all
+share one :class:`~pernav.trainer.buffers.RoundBuffers`. The planner imagines every candidate with every
+member (adapted or not) and leaves explore only where all members agree that it gains
+(:class:`~pernav.planner.retiming.RetimingPlanner`'s ``agree``), so where the members disagree, a poor
+model costs little. With ``size=1`` this is exactly one FTML trainer.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> buffers = RoundBuffers(L=3, seed=0)
+    >>> T = 20
+    >>> buffers.add(0, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
+    ...     "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]), tau=True)
+    >>> ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3), size=2)
+    >>> ens.fit_normalization()
+    >>> len(ens.train(2, meta=False)), len(ens.parameters(buffers.tau(0), adapted=True, alpha=0.01))
+    (2, 2)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+
+from pernav.model.adapt import adapt, meta_parameters
+from pernav.model.dynamics import DynamicsModel
+from pernav.trainer.buffers import RoundBuffers
+from pernav.trainer.ftml import FTMLTrainer, TrainConfig
+
+__all__ = ["EnsembleTrainer"]
+
+
+class EnsembleTrainer:
+    """``size`` FTML trainers on one data stream; the first member's module is ``model``.
+
+    Args:
+        make_model: builds one member (called under a member-specific torch seed, so members differ).
+        buffers: the shared data stream.
+        config: the members' hyperparameters.
+        size: members.
+        seed: base seed (member ``i`` uses ``seed + i`` for its initialization and its sampling).
+    """
+
+    def __init__(self, make_model: Callable[[], DynamicsModel], buffers: RoundBuffers, config: TrainConfig,
+                 size: int = 1, seed: int = 0) -> None:
+        if size < 1:
+            raise ValueError(f"ensemble size must be >= 1, got {size}")
+        self.members: list[FTMLTrainer] = []
+        for i in range(size):
+            with torch.random.fork_rng():
+                torch.manual_seed(seed + i)
+                model = make_model()
+            self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i))
+        self.config = config
+
+    @property
+    def model(self) -> DynamicsModel:
+        return self.members[0].model
+
+    @property
+    def buffers(self) -> RoundBuffers:
+        return self.members[0].buffers
+
+    @buffers.setter
+    def buffers(self, buffers: RoundBuffers) -> None:
+        for m in self.members:
+            m.buffers = buffers
+
+    @property
+    def skipped(self) -> int:
+        return sum(m.skipped for m in self.members)
+
+    def fit_normalization(self) -> None:
+        for m in self.members:
+            m.fit_normalization()
+
+    def train(self, updates: int, meta: bool) -> list[float]:
+        """``updates`` steps of every member; the members' mean loss per step."""
+        losses = torch.tensor([m.train(updates, meta) for m in self.members])
+        return losses.mean(0).tolist()
+
+    def parameters(self, tau: TensorDictBase, adapted: bool, alpha: float) -> list[TensorDictBase]:
+        """Every member's parameters (detached), each adapted on ``tau`` with ``U`` when ``adapted``."""
+        out = []
+        for m in self.members:
+            if adapted:
+                with torch.enable_grad():
+                    out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True).detach())
+            else:
+                out.append(meta_parameters(m.model).detach().clone())
+        return out
+
+    def round_loss(self, round_: int, adapted: bool) -> float:
+        """The members' mean held-out L-step loss on a round (:meth:`FTMLTrainer.round_loss`)."""
+        return float(sum(m.round_loss(round_, adapted) for m in self.members) / len(self.members))
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"members": [m.state_dict() for m in self.members]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        members = state["members"]
+        if len(members) != len(self.members):
+            raise ValueError(f"checkpoint has {len(members)} ensemble members, this config {len(self.members)}")
+        for m, s in zip(self.members, members, strict=True):
+            m.load_state_dict(s)

@@ -1,0 +1,78 @@
+"""The model ensemble (issue #10): batched imagination equals member by member, training, checkpoints,
+and the held-out round loss."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from pernav.model import DynamicsModel
+from pernav.model.adapt import meta_parameters
+from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.trainer.buffers import RoundBuffers
+from pernav.trainer.ensemble import EnsembleTrainer
+from pernav.trainer.ftml import TrainConfig
+
+
+def _trajectory(T: int, K: int = 5, seed: int = 0) -> TensorDict:
+    g = torch.Generator().manual_seed(seed)
+    return TensorDict({"observation": torch.randn(T, 14, generator=g), "action": torch.randint(7, (T,), generator=g),
+                       "history": torch.randn(T, K, 21, generator=g),
+                       ("next", "observation"): torch.randn(T, 14, generator=g)}, [T])
+
+
+def test_batched_ensemble_imagination_equals_member_by_member():
+    torch.manual_seed(0)
+    models = [DynamicsModel(K=5, hidden=(16, 16)) for _ in range(3)]
+    for i, m in enumerate(models):  # different normalization per member, so the stacked buffers matter
+        g = torch.Generator().manual_seed(i)
+        m.fit_normalization(torch.randn(50, 5, 21, generator=g), torch.randint(7, (50,), generator=g),
+                            torch.randn(50, 14, generator=g))
+    params = [meta_parameters(m).detach().clone() for m in models]
+    env = ImaginedNavigationEnv(make_world_model(models[0]))
+    root = TensorDict({"history": torch.randn(5, 21)}, [])
+    seqs = torch.randint(7, (6, 8))
+    pos, goal = env.imagine(root, seqs, params=params)
+    for i, p in enumerate(params):
+        p_pos, p_goal = env.imagine(root, seqs, params=[p])
+        torch.testing.assert_close(pos[i], p_pos[0], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(goal[i], p_goal[0], rtol=1e-5, atol=1e-5)
+    assert not torch.allclose(pos[0], pos[1])  # the members do differ
+
+
+def test_ensemble_members_differ_train_and_round_trip():
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(30), tau=True)
+    buffers.add(0, _trajectory(30, seed=1))
+    cfg = TrainConfig(batch=8, L=3)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, cfg, size=3, seed=5)
+    weights = [m.model.net[0].weight for m in ens.members]
+    assert not torch.equal(weights[0], weights[1])
+    ens.fit_normalization()
+    before = [w.detach().clone() for w in weights]
+    losses = ens.train(3, meta=True)
+    assert len(losses) == 3 and all(torch.isfinite(torch.tensor(losses)))
+    assert all(not torch.equal(b, m.model.net[0].weight) for b, m in zip(before, ens.members, strict=True))
+    other = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, cfg, size=3, seed=9)
+    other.load_state_dict(ens.state_dict())
+    for a, b in zip(ens.members, other.members, strict=True):
+        assert all(torch.equal(x, y) for x, y in zip(a.model.state_dict().values(), b.model.state_dict().values(),
+                                                     strict=True))
+    params = ens.parameters(buffers.tau(0), adapted=True, alpha=0.01)
+    assert len(params) == 3 and not params[0]["net", "0", "weight"].requires_grad
+
+
+def test_round_loss_is_held_out_and_exact():
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    torch.manual_seed(0)
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(12), tau=True)
+    buffers.add(0, _trajectory(9, seed=1))
+    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3), size=1).members[0]
+    held_out = buffers.data(0)[12:]  # the second trajectory
+    with torch.no_grad():
+        expected = float(multistep_loss(trainer.model, trajectory_windows(held_out, 3, 3)))
+    assert abs(trainer.round_loss(0, adapted=False) - expected) < 1e-6
+    assert trainer.round_loss(0, adapted=False) == trainer.round_loss(0, adapted=False)  # no sampling
