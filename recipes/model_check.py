@@ -12,7 +12,7 @@ the true and the predicted divergence, and the mean absolute error, for:
 
 Run (after ``make study`` or ``pernav study --preset default --out runs/default``):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/model_check.py --study runs/default [--town Town1]
-[--json docs/figures/model_check/model_check.json]
+[--json docs/figures/model_check/model_check.json] [--plot docs/figures/model_check/divergence.png]
 """
 
 from __future__ import annotations
@@ -98,6 +98,7 @@ def main() -> None:
     ap.add_argument("--town", default="Town1")
     ap.add_argument("--drivers", nargs="*", default=list(PANEL))
     ap.add_argument("--json", default="model_check.json")
+    ap.add_argument("--plot", default=None, help="scatter of true vs predicted divergence (png)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     study = Path(args.study)
@@ -105,7 +106,7 @@ def main() -> None:
         print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
         sys.exit(2)
     meta, members = load_meta(study, args.town)
-    rows = {}
+    rows, pooled = {}, {}
     for driver in args.drivers:
         tau = drive(driver_env(driver, args.town, 7, 77, meta.K), explore_module())
         params, adapted = [], []
@@ -118,21 +119,55 @@ def main() -> None:
         models = {"meta": (imagined, params), "adapted": (imagined, adapted),
                   "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
         div = approach_divergences(driver, args.town, models)
-        rows[driver] = {"states": int(div["true"].shape[0]), "true_mean": div["true"].mean(0).round(2).tolist()}
+        for name, values in div.items():
+            pooled.setdefault(name, []).append(values)
+        rows[driver] = {"states": int(div["true"].shape[0]), "true_mean": [round(float(x), 2) for x in div["true"].mean(0)]}
         for name in models:
             corr = [float(np.corrcoef(div["true"][:, i], div[name][:, i])[0, 1]) for i in range(len(STEPS))]
             mae = np.abs(div["true"] - div[name]).mean(0)
-            rows[driver][name] = {"corr": [round(c, 3) for c in corr], "mae": mae.round(2).tolist(),
-                                  "pred_mean": div[name].mean(0).round(2).tolist()}
+            rows[driver][name] = {"corr": [round(c, 3) for c in corr], "mae": [round(float(x), 2) for x in mae],
+                                  "pred_mean": [round(float(x), 2) for x in div[name].mean(0)]}
         print(driver, json.dumps(rows[driver]))
+    pooled = {k: np.concatenate(v) for k, v in pooled.items()}
+    overall = {name: [round(float(np.corrcoef(pooled["true"][:, i], pooled[name][:, i])[0, 1]), 3)
+                      for i in range(len(STEPS))] for name in pooled if name != "true"}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"steps": STEPS, "delay_s": DELAY, "town": args.town, "drivers": rows},
+    Path(args.json).write_text(json.dumps({"steps": STEPS, "delay_s": DELAY, "town": args.town, "drivers": rows,
+                                           "pooled_corr": overall,
+                                           "divergences": {k: v.round(2).tolist() for k, v in pooled.items()}},
                                           indent=1))
+    if args.plot:
+        scatter(pooled, args.plot, args.town)
     print("| driver | states | true divergence m (5 s, 10 s) | corr meta | corr adapted | corr per-driver |")
     print("|---|---|---|---|---|---|")
     for d, r in rows.items():
         print(f"| {d} | {r['states']} | {r['true_mean']} | {r['meta']['corr']} | {r['adapted']['corr']} "
               f"| {r['per-driver']['corr']} |")
+    print(f"| all drivers | {pooled['true'].shape[0]} | {[round(float(x), 2) for x in pooled['true'].mean(0)]} | "
+          f"{overall['meta']} | {overall['adapted']} | {overall['per-driver']} |")
+
+
+def scatter(pooled: dict[str, np.ndarray], path: str, town: str) -> None:
+    """True vs predicted divergence after 10 steps, one panel per model, every driver's states pooled."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = [k for k in pooled if k != "true"]
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 4), sharex=True, sharey=True)
+    top = max(float(v[:, -1].max()) for v in pooled.values()) * 1.05
+    for ax, name in zip(axes, names, strict=True):
+        ax.scatter(pooled["true"][:, -1], pooled[name][:, -1], s=10, alpha=0.6)
+        ax.plot([0, top], [0, top], color="grey", lw=1)
+        r = np.corrcoef(pooled["true"][:, -1], pooled[name][:, -1])[0, 1]
+        ax.set_title(f"{name}: r = {r:.2f}")
+        ax.set_xlabel(f"true divergence after {STEPS[-1]} s (m)")
+    axes[0].set_ylabel("predicted divergence (m)")
+    fig.suptitle(f"prompt now vs {DELAY} s later, {town}: does the model know the driver's timing?")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
 
 
 if __name__ == "__main__":
