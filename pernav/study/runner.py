@@ -299,7 +299,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
 
 
 def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
-    """Eq. 1 on the offline data. sysid and adapt share data, actions and seed: train once, copy."""
+    """Eq. 1 on the offline data, then for the meta learners one round's worth of FTML updates on the offline
+    rounds (each has its tau), so that U(P, tau) already helps in the first online round. sysid and adapt
+    share data, actions and seed: Eq. 1 is trained once and copied."""
     done: dict[int, Learner] = {}
     for learner in learners.values():
         if learner.n_actions in done:
@@ -308,6 +310,9 @@ def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
         learner.trainer.fit_normalization()
         learner.trainer.train(cfg.train.warm_updates, meta=False)
         done[learner.n_actions] = learner
+    for learner in learners.values():
+        if learner.meta:
+            learner.trainer.train(cfg.train.updates, meta=True)
 
 
 def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner: Learner, state: dict[str, Any],
