@@ -36,8 +36,10 @@ def _figures(rounds: list[dict[str, Any]], method: str) -> dict[str, Any]:
     out: dict[str, Any] = {"rounds": len(rounds)}
     out["explore_minus_method"] = paired_difference(costs("explore", rounds), costs(method, rounds))
     out["tracking_cost"] = bootstrap_ci(costs(method, rounds))[0]
+    out["explore_tracking_cost"] = bootstrap_ci(costs("explore", rounds))[0]
     for key in ("collisions", "missed_turns", "extra_distance"):
         out[key] = float(sum(e.get(key, 0) for r in rounds for e in r[method]["episodes"]))
+        out[f"explore_{key}"] = float(sum(e.get(key, 0) for r in rounds for e in r["explore"]["episodes"]))
     if all("oracle" in r for r in rounds):
         out["gap_closed"] = gap_closed(costs("explore", rounds), costs(method, rounds), costs("oracle", rounds))
         head = [r for r in rounds if r["oracle"]["tracking_cost"] < (1 - HEADROOM) * r["explore"]["tracking_cost"]]

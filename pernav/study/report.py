@@ -130,9 +130,10 @@ def _headline(results: dict[str, Any]) -> list[str]:
 
 def comparison_table(comparison: dict[str, Any]) -> str:
     """Markdown of :func:`pernav.study.compare.compare`: paired differences to explore with 95 % CIs."""
-    lines = ["| town | method | rounds | explore − method (95 % CI) | gap closed (95 % CI) | gap closed, rounds "
-             "with headroom (n) | cost / explore, rounds without | collisions | missed turns | extra m |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| town | method | rounds | cost (explore) | explore − method (95 % CI) | gap closed (95 % CI) | gap "
+             "closed, rounds with headroom (n) | cost / explore, rounds without | collisions (explore) | missed turns "
+             "(explore) | extra m (explore) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def ci(x: dict[str, Any] | None, pct: bool = False) -> str:
         if not x or x["mean"] != x["mean"]:  # NaN: no gap to close
@@ -143,10 +144,15 @@ def comparison_table(comparison: dict[str, Any]) -> str:
     for town, methods in comparison.items():
         for method, f in methods.items():
             no_head = f.get("relative_cost_no_headroom")
-            lines.append(f"| {town} | {method} | {f['rounds']} | {ci(f['explore_minus_method'])} | "
+            def with_explore(key: str, f: dict[str, Any] = f) -> str:
+                return f"{f[key]:.0f} ({f.get('explore_' + key, float('nan')):.0f})"
+
+            lines.append(f"| {town} | {method} | {f['rounds']} | {with_explore('tracking_cost')} | "
+                         f"{ci(f['explore_minus_method'])} | "
                          f"{ci(f.get('gap_closed'), True)} | {ci(f.get('gap_closed_headroom'), True)} "
                          f"({f.get('headroom_rounds', 0)}) | {'–' if no_head is None else f'{no_head:.2f}'} | "
-                         f"{f['collisions']:.0f} | {f['missed_turns']:.0f} | {f['extra_distance']:.0f} |")
+                         f"{with_explore('collisions')} | {with_explore('missed_turns')} | "
+                         f"{with_explore('extra_distance')} |")
     return "\n".join(lines)
 
 
