@@ -1,9 +1,11 @@
 """An ensemble of dynamics models trained side by side on one data stream (the planner's uncertainty).
 
-Each member is a :class:`~pernav.model.DynamicsModel` of the same architecture with its own initialization,
-its own :class:`~pernav.trainer.ftml.FTMLTrainer` (Adam state, sampling generator) and so its own batches; all
-share one :class:`~pernav.trainer.buffers.RoundBuffers`. The planner imagines every candidate with every
-member (adapted or not) and leaves explore only where all members agree that it gains
+Each member is a :class:`~pernav.model.DynamicsModel` of the same architecture with its own initialization
+and its own :class:`~pernav.trainer.ftml.FTMLTrainer` (Adam state); all share one
+:class:`~pernav.trainer.buffers.RoundBuffers` and, per update, one sampled batch (members differ by their
+initialization, as in a deep ensemble; sampling windows costs more than a small model's step). The planner
+imagines every candidate with every member (adapted or not) and leaves explore only where all members agree
+that it gains
 (:class:`~pernav.planner.retiming.RetimingPlanner`'s ``agree``), so where the members disagree, a poor
 model costs little. With ``size=1`` this is exactly one FTML trainer.
 
@@ -81,9 +83,17 @@ class EnsembleTrainer:
             m.fit_normalization()
 
     def train(self, updates: int, meta: bool) -> list[float]:
-        """``updates`` steps of every member; the members' mean loss per step."""
-        losses = torch.tensor([m.train(updates, meta) for m in self.members])
-        return losses.mean(0).tolist()
+        """``updates`` steps of every member on the same batches (drawn once per step by the first member:
+        sampling windows costs more than a small model's step); the members' mean loss per step."""
+        if len(self.members) == 1:
+            return self.members[0].train(updates, meta)
+        losses = []
+        for _ in range(updates):
+            first = self.members[0]
+            batches = first.meta_batches() if meta else first.plain_batches()
+            step = [(m.meta_update if meta else m.plain_update)(batches) for m in self.members]
+            losses.append(sum(step) / len(step))
+        return losses
 
     def parameters(self, tau: TensorDictBase, adapted: bool, alpha: float) -> list[TensorDictBase]:
         """Every member's parameters (detached), each adapted on ``tau`` with ``U`` when ``adapted``."""

@@ -108,31 +108,39 @@ class FTMLTrainer:
         self.losses.append(value)
         return value
 
-    def meta_update(self) -> float:
-        """One FTML step over sampled rounds (each adapted on its own tau)."""
+    def meta_batches(self) -> list[tuple[int, int, Any]]:
+        """One meta update's data: (round, windows, ``[n, L]`` batch) for up to ``rounds_per_update`` rounds."""
         rounds = sorted(self.buffers.taus)
         if not rounds:
             raise ValueError("meta_update needs rounds with an adaptation trajectory")
-        total = 0.0
-        parts = self._split(rounds)
-        for r, n in parts:
-            adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
-                            first_order=self.config.first_order)
-            total = total + multistep_loss(self.model, self.buffers.sample(r, n), params=adapted) * (n / self.config.batch)
-        return self._apply(total)
+        return [(r, n, self.buffers.sample(r, n)) for r, n in self._split(rounds)]
 
-    def plain_update(self) -> float:
-        """One maximum-likelihood step on windows from all rounds (no adaptation)."""
+    def plain_batches(self) -> list[tuple[int, int, Any]]:
+        """One plain update's data: ``batch`` windows drawn over all rounds in proportion to their size."""
         rounds = self.buffers.rounds
         if not rounds:
             raise ValueError("plain_update needs data")
         sizes = torch.tensor([len(self.buffers.buffers[r]) for r in rounds], dtype=torch.float)
         draws = torch.multinomial(sizes, self.config.batch, replacement=True, generator=self.generator)
+        counts = [(r, int((draws == i).sum())) for i, r in enumerate(rounds)]
+        return [(r, n, self.buffers.sample(r, n)) for r, n in counts if n]
+
+    def meta_update(self, batches: list[tuple[int, int, Any]] | None = None) -> float:
+        """One FTML step over sampled rounds (each adapted on its own tau); ``batches`` from
+        :meth:`meta_batches` (drawn here by default; an ensemble draws once for all its members)."""
         total = 0.0
-        for i, r in enumerate(rounds):
-            n = int((draws == i).sum())
-            if n:
-                total = total + multistep_loss(self.model, self.buffers.sample(r, n)) * (n / self.config.batch)
+        for r, n, batch in self.meta_batches() if batches is None else batches:
+            adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
+                            first_order=self.config.first_order)
+            total = total + multistep_loss(self.model, batch, params=adapted) * (n / self.config.batch)
+        return self._apply(total)
+
+    def plain_update(self, batches: list[tuple[int, int, Any]] | None = None) -> float:
+        """One maximum-likelihood step on windows from all rounds (no adaptation); ``batches`` as in
+        :meth:`meta_update`, from :meth:`plain_batches`."""
+        total = 0.0
+        for _r, n, batch in self.plain_batches() if batches is None else batches:
+            total = total + multistep_loss(self.model, batch) * (n / self.config.batch)
         return self._apply(total)
 
     def train(self, updates: int, meta: bool) -> list[float]:
