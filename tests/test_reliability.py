@@ -130,6 +130,6 @@ def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplo
         for figures in it["towns"]["Town1"].values():
             assert figures["tracking_cost"] == figures["tracking_cost"]  # not NaN
     for name in ("sysid", "adapt"):
-        params = torch.load(Path(tmp_path / "nan" / "checkpoints" / "Town1").glob("entry_*").__next__() / "state.pt",
-                            weights_only=False)["learners"][name]["model"]
-        assert all(torch.isfinite(v).all() for v in params.values())
+        members = torch.load(Path(tmp_path / "nan" / "checkpoints" / "Town1").glob("entry_*").__next__() / "state.pt",
+                             weights_only=False)["learners"][name]["members"]
+        assert members and all(torch.isfinite(v).all() for m in members for v in m["model"].values())
