@@ -36,12 +36,11 @@ def build_planner(env: Any, options: Mapping[str, Any], n_actions: int | None = 
     kind = options.pop("kind", "retime")
     if kind not in PLANNER_DEFAULTS:
         raise ValueError(f"unknown planner kind {kind!r}; choose one of {', '.join(PLANNER_KINDS)}")
-    unknown = sorted(set(options) - set(PLANNER_DEFAULTS[kind]) - {"ensemble"})
+    unknown = sorted(set(options) - set(PLANNER_DEFAULTS[kind]))
     if unknown:
         raise ValueError(f"unknown {kind} planner option {unknown[0]!r}; allowed: "
-                         f"kind, ensemble, {', '.join(PLANNER_DEFAULTS[kind])}")
+                         f"kind, {', '.join(PLANNER_DEFAULTS[kind])}")
     opts = {**PLANNER_DEFAULTS[kind], **options}
-    opts.pop("ensemble", None)
     if kind == "paper":
         beam = opts.pop("beam_speed")
         return TreeSearchPlanner(env, beam=beam if n_actions == 21 else None, **opts)
