@@ -17,6 +17,7 @@ import json
 import sys
 from pathlib import Path
 
+from pernav.study.config import COLLECT, METHODS
 from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.routing import RouteError
@@ -120,6 +121,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", choices=["retime", "paper"],
                    help="the learners' planner: retime (default: long horizon, re-timed explore prompts) or paper "
                         "(horizon-5 masked tree)")
+    p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: all six)")
+    p.add_argument("--collect", choices=COLLECT,
+                   help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
+                        "at random; the default preset's choice)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -145,6 +150,10 @@ def _study(args: argparse.Namespace) -> None:
         cfg.seed = args.seed
     if args.planner is not None:
         cfg.planner = {"kind": args.planner}
+    if args.methods is not None:
+        cfg.methods = [m for m in METHODS if m in args.methods]
+    if args.collect is not None:
+        cfg.collect = args.collect
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

@@ -200,3 +200,29 @@ def test_extra_distance_is_zero_on_a_clean_drive_and_never_negative():
         done = te or tr
         assert info["extra_distance"] >= 0.0
     assert info["completed"] and info["missed_turns"] == 0 and info["extra_distance"] < 10.0
+
+
+def _collect(policy, seed: int = 5):
+    from pernav.planner.factory import env_planning_config
+    from pernav.trainer.collect import drive, history_env
+
+    config = {"n_traffic": 2, **env_planning_config({"kind": "retime"})}
+    env = history_env("Town1", {"route": 1, "user": "user3"}, config=config, seed=seed, K=5)
+    return drive(env, policy, max_steps=80)
+
+
+def test_retimed_explore_is_explore_at_p0_and_retimes_explore_prompts_otherwise():
+    from pernav.env.torchrl_env import explore_module
+    from pernav.planner import RetimedExplore
+
+    explore = _collect(explore_module())
+    assert torch.equal(_collect(RetimedExplore(p=0.0, seed=1))["action"], explore["action"])
+    a, b = _collect(RetimedExplore(p=1.0, seed=1)), _collect(RetimedExplore(p=1.0, seed=1))
+    assert torch.equal(a["action"], b["action"])  # seeded
+    assert (a["action"][: explore.shape[0]] != explore["action"][: a.shape[0]]).any()
+    # it only re-times: every instruction it plays is one explore plays on this route or one the mask allows
+    masks = a["action_mask"][:, 0]
+    said = set(explore["action"].tolist()) | {0}
+    assert all(int(x) in said or bool(m[int(x)]) for x, m in zip(a["action"], masks, strict=True))
+    with pytest.raises(ValueError, match="hold"):
+        RetimedExplore(hold=0)

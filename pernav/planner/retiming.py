@@ -48,12 +48,13 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
 from pernav.model.dynamics import GX, GY, STATE_DIM
 from pernav.world.cost import tracking_cost
 
-__all__ = ["RetimingPlanner", "RetimingResult", "candidate_plans"]
+__all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
 
 
 @dataclass
@@ -78,7 +79,7 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     >>> seqs, e = candidate_plans(torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 2, 1)
     >>> seqs[e].tolist()
     [0, 0, 4, 4]
-    >>> [0, 2, 2, 2] in seqs.tolist() and [4, 4, 2, 2] in seqs.tolist()
+    >>> [4, 4, 2, 2] in seqs.tolist() and [2, 2, 2, 2] in seqs.tolist()
     True
     """
     H = horizon
@@ -207,3 +208,71 @@ class RetimingPlanner(MPCPlannerBase):
             actions.append(action)
         self.planning_s += time.perf_counter() - t0
         return torch.tensor(actions, dtype=torch.long).reshape(td.shape)
+
+
+class RetimedExplore(TensorDictModuleBase):
+    """The explore policy with its prompts re-timed at random: a data-collection policy that shows the model
+    what a prompt's *timing* does for this driver.
+
+    Explore alone always speaks at the same lead, so its data cannot identify the effect of speaking earlier
+    or later, which is exactly what :class:`RetimingPlanner` asks of the model. Where a re-timing would change
+    this step's action, with probability ``p`` this policy plays one of the planner's own candidates (drawn
+    uniformly from :func:`candidate_plans`, explore's excluded) for ``hold`` steps, then returns to explore.
+    It never evaluates a method; it only collects data.
+
+    Reads ``"history"``, ``"explore_future"`` and ``"action_mask"``; writes ``"action"``. Call :meth:`reset`
+    (or make a new one) per episode.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> policy = RetimedExplore(p=1.0, seed=0)
+        >>> td = TensorDict({"history": torch.zeros(5, 21), "explore_future": torch.tensor([0, 0, 4, 4, 2, 2, 0]),
+        ...                  "action_mask": torch.ones(5, 7, dtype=torch.bool)}, [])
+        >>> int(policy(td)["action"]) != 0  # explore would stay silent now; a re-timing speaks early
+        True
+    """
+
+    def __init__(self, p: float = 0.5, advance: int = 6, delay: int = 3, hold: int = 6, seed: int = 0) -> None:
+        super().__init__()
+        if not 0.0 <= p <= 1.0 or hold < 1:
+            raise ValueError(f"need p in [0, 1] and hold >= 1; got p={p}, hold={hold}")
+        self.p, self.advance, self.delay, self.hold = float(p), int(advance), int(delay), int(hold)
+        self.in_keys = ["history", "explore_future", "action_mask"]
+        self.out_keys = ["action"]
+        self.generator = torch.Generator().manual_seed(int(seed))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the re-timing in progress (a new episode)."""
+        self._plan: list[int] = []
+
+    def _uniform(self) -> float:
+        return float(torch.rand((), generator=self.generator))
+
+    def _act(self, root: TensorDictBase) -> int:
+        n_actions = int(root["action_mask"].shape[-1])
+        playbacks = 3 if n_actions == 21 else 1
+        future = root["explore_future"].long()
+        if self._plan:
+            instruction = self._plan.pop(0)
+        else:
+            hist = root["history"]
+            last_onehot = hist[-2, STATE_DIM:] if hist.shape[0] > 1 else hist[-1, STATE_DIM:]
+            last = int(last_onehot.argmax()) // playbacks if bool(last_onehot.any()) else 0
+            allowed = root["action_mask"][0].bool().reshape(-1, playbacks).any(-1).nonzero().squeeze(-1)
+            seqs, explore = candidate_plans(future, last, allowed, self.hold, self.advance, self.delay)
+            others = [i for i in range(seqs.shape[0]) if int(seqs[i, 0]) != int(seqs[explore, 0])]
+            if others and self._uniform() < self.p:
+                pick = others[int(torch.randint(len(others), (), generator=self.generator))]
+                self._plan = seqs[pick].tolist()
+                instruction = self._plan.pop(0)
+            else:
+                instruction = int(future[0])
+        return instruction * playbacks + (1 if playbacks == 3 else 0)  # 21 actions: normal playback
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        flat = td.reshape(-1)
+        actions = [self._act(flat[i]) for i in range(flat.shape[0])]
+        td.set("action", torch.tensor(actions, dtype=torch.long).reshape(td.shape))
+        return td

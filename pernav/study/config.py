@@ -15,9 +15,10 @@ from pernav.study.schedule import Entry, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
 
-__all__ = ["METHODS", "PRESETS", "PresetError", "StudyConfig", "preset"]
+__all__ = ["COLLECT", "METHODS", "PRESETS", "PresetError", "StudyConfig", "preset"]
 
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "oracle")
+COLLECT = ("explore", "retimed")  # StudyConfig.collect choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 
 
@@ -39,6 +40,10 @@ class StudyConfig:
     methods: list[str] = field(default_factory=lambda: list(METHODS))
     train: TrainConfig = field(default_factory=TrainConfig)
     planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
+    # the learners' non-MPC data: "explore" (the paper) or "retimed" (explore with its prompts re-timed at
+    # random, pernav.planner.RetimedExplore, so the data identify what a prompt's timing does). The tau
+    # trajectories and every evaluation stay pure explore either way.
+    collect: str = "explore"
     seed: int = 0
 
     def entries_for(self, town: str) -> list[Entry]:
@@ -59,6 +64,8 @@ class StudyConfig:
         unknown = [m for m in self.methods if m not in METHODS]
         if unknown:
             raise PresetError(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
+        if self.collect not in COLLECT:
+            raise PresetError(f"collect must be one of {', '.join(COLLECT)}, got {self.collect!r}")
         if not 1 <= self.routes <= 10:
             raise PresetError(f"routes must be in [1, 10], got {self.routes}")
         if self.rollouts < 0 or self.offline_trajectories < 1:
@@ -79,7 +86,7 @@ def _smoke() -> StudyConfig:
         preset="smoke", towns=["Town1"], schedule=_select(["Offline 0", "Online 0", "Online 8"]),
         routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
         train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2, ensemble=2),
-        planner={"kind": "retime"})
+        planner={"kind": "retime"}, collect="retimed")
 
 
 def _default() -> StudyConfig:
@@ -93,7 +100,8 @@ def _default() -> StudyConfig:
         # three smaller models rather than one large: the planner leaves explore only where all three agree;
         # a 10-step history spans a prompt, the driver's reaction and the turn (memory is 8-30 s)
         train=TrainConfig(updates=50, batch=128, warm_updates=300, rounds_per_update=2, hidden=[128, 128], K=10,
-                          ensemble=3))
+                          ensemble=3),
+        collect="retimed")
 
 
 def _paper() -> StudyConfig:

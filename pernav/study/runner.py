@@ -36,6 +36,7 @@ from pernav.env.torchrl_env import explore_module
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
+from pernav.planner.retiming import RetimedExplore
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
@@ -81,6 +82,13 @@ class Learner:
     def spec(self) -> dict[str, Any]:
         """The model as an :class:`EpisodeJob` ships it (config + a copy of the state dict)."""
         return {"config": self.model.config(), "state": {k: v.clone() for k, v in self.model.state_dict().items()}}
+
+
+def _collector(cfg: StudyConfig, seed: int) -> Any:
+    """The learners' non-MPC data-collection policy (``cfg.collect``): explore, or explore re-timed at random."""
+    if cfg.collect == "retimed":
+        return RetimedExplore(seed=derive_seed(seed, "retimed"))
+    return explore_module()
 
 
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
@@ -228,9 +236,11 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             with _Timer(profile, "collection_s"):
                 for k in range(cfg.offline_trajectories):
                     route = rng.randrange(10)
-                    traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "offline", k),
-                                   explore_module())
-                    episodes.append({"route": route, **episode_metrics(traj)})
+                    seed = derive_seed(cfg.seed, town, entry.label, "offline", k)
+                    policy = explore_module() if k == 0 else _collector(cfg, seed)  # k = 0 is tau: explore
+                    traj = episode(cfg, town, entry, route, seed, policy)
+                    if k == 0 or cfg.collect == "explore":  # the round's explore figures: explore's episodes
+                        episodes.append({"route": route, **episode_metrics(traj)})
                     for learner in learners.values():
                         learner.add(index, traj, tau=(k == 0))
             record["methods"]["explore"] = _summarize(episodes)
@@ -265,9 +275,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                     for k in range(cfg.rollouts):
                         use_mpc = rng.random() < 0.5
                         route = rng.randrange(10)
-                        policy = learner.planner if use_mpc else explore_module()
-                        traj = episode(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, name, k),
-                                       policy, learner.n_actions)
+                        seed = derive_seed(cfg.seed, town, entry.label, name, k)
+                        policy = learner.planner if use_mpc else _collector(cfg, seed)
+                        traj = episode(cfg, town, entry, route, seed, policy, learner.n_actions)
                         learner.buffers.add(index, traj)  # already in the learner's action space
             profile["collection_planning_s"] = profile.get("collection_planning_s", 0.0) + sum(
                 learner.planner.planning_s for learner in learners.values()) - planning_before
