@@ -76,3 +76,28 @@ def test_round_loss_is_held_out_and_exact():
         expected = float(multistep_loss(trainer.model, trajectory_windows(held_out, 3, 3)))
     assert abs(trainer.round_loss(0, adapted=False) - expected) < 1e-6
     assert trainer.round_loss(0, adapted=False) == trainer.round_loss(0, adapted=False)  # no sampling
+
+
+def test_batched_ensemble_update_equals_each_member_stepping_alone():
+    def make(first_order: bool) -> EnsembleTrainer:
+        buffers = RoundBuffers(L=3, seed=0)
+        for r in (0, 1):
+            buffers.add(r, _trajectory(20, seed=2 * r), tau=True)
+            buffers.add(r, _trajectory(15, seed=2 * r + 1))
+        ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers,
+                              TrainConfig(batch=12, L=3, rounds_per_update=2, first_order=first_order), size=3, seed=2)
+        ens.fit_normalization()
+        return ens
+
+    for meta, first_order in ((True, False), (True, True), (False, False)):
+        batched, alone = make(first_order), make(first_order)
+        batched.train(2, meta=meta)
+        for _ in range(2):
+            first = alone.members[0]
+            batches = first.meta_batches() if meta else first.plain_batches()
+            for m in alone.members:
+                (m.meta_update if meta else m.plain_update)(batches)
+        for a, b in zip(batched.members, alone.members, strict=True):
+            for x, y in zip(a.model.parameters(), b.model.parameters(), strict=True):
+                torch.testing.assert_close(x, y, rtol=1e-4, atol=1e-5)
+        assert not torch.equal(batched.members[0].model.net[0].weight, make(first_order).members[0].model.net[0].weight)

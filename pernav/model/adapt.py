@@ -57,8 +57,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
     transitions).
 
-    ``params`` defaults to the model's own (meta) parameters. Buffers (normalization statistics) are
-    carried over unchanged.
+    ``params`` defaults to the model's own (meta) parameters; stacked ensemble parameters (batch ``[E]``)
+    adapt every member at once. Buffers (normalization statistics) are carried over unchanged.
     """
     params = meta_parameters(model) if params is None else params
     keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad]
@@ -67,7 +67,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     windows = trajectory_windows(trajectory, L, L if stride is None else stride)
     with torch.enable_grad():
         loss = multistep_loss(model, windows, params=params)
-        grads = torch.autograd.grad(loss, [params.get(k) for k in keys], create_graph=not first_order)
+        # stacked ensemble parameters give one loss per member: their sum's gradient is each member's own
+        grads = torch.autograd.grad(loss.sum(), [params.get(k) for k in keys], create_graph=not first_order)
     adapted = params.copy()  # shallow: buffers are shared, parameters replaced below
     for k, g in zip(keys, grads, strict=True):
         adapted.set(k, params.get(k) - alpha * g)

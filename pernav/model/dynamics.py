@@ -163,8 +163,16 @@ class DynamicsModel(nn.Module):
         >>> m.ensemble_forward(torch.zeros(2, 3, 5, 21), torch.zeros(3, dtype=torch.long), p).shape
         torch.Size([2, 3, 14])
         """
-        E = params.shape[0]
         window = self.with_action(history, action.expand(history.shape[:-2]))
+        delta = self.ensemble_normalized_delta(window, params) * params["out_std"].unsqueeze(1) \
+            + params["out_mean"].unsqueeze(1)
+        return apply_delta(history[..., -1, : self.state_dim], delta)
+
+    def ensemble_normalized_delta(self, window: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
+        """:meth:`normalized_delta` of ``E`` members at once: ``window`` ``[E, N, K, W]`` (with actions),
+        ``params`` stacked as in :meth:`ensemble_forward`; ``[E, N, 14]``. Differentiable in ``params``
+        (how :class:`~pernav.trainer.ensemble.EnsembleTrainer` trains all members in one pass)."""
+        E = params.shape[0]
         x = (self.features(window) - params["in_mean"].unsqueeze(1)) / params["in_std"].unsqueeze(1)  # [E, N, F]
         for name, layer in self.net.named_children():
             if isinstance(layer, nn.Linear):
@@ -172,8 +180,7 @@ class DynamicsModel(nn.Module):
                 x = torch.baddbmm(bias.reshape(E, 1, -1), x, weight.transpose(1, 2))
             else:
                 x = layer(x)
-        delta = x * params["out_std"].unsqueeze(1) + params["out_mean"].unsqueeze(1)
-        return apply_delta(history[..., -1, : self.state_dim], delta)
+        return x
 
     def next_window(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
         """``history`` shifted by one step: ``action`` recorded, ``(next_state, 0)`` appended."""

@@ -38,24 +38,33 @@ def using(model: torch.nn.Module, params: TensorDictBase | None):
     return nullcontext() if params is None else params.to_module(model)
 
 
-def _rollout_loss(model: DynamicsModel, batch: TensorDictBase) -> torch.Tensor:
+def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorDictBase | None = None) -> torch.Tensor:
+    """The L-step loss of ``model`` (a scalar), or with ``ensemble`` (stacked member parameters, batch
+    ``[E]``) every member's at once (``[E]``): the same batch, each member rolling out its own predictions."""
     history = batch["history"][:, 0]
     actions = batch["action"]
     states = batch["observation"]
     next_states = batch["next", "observation"]
     S = model.state_dim
-    loss = history.new_zeros(())
+    if ensemble is None:
+        mean, std = model.out_mean, model.out_std
+        loss = history.new_zeros(())
+    else:  # a leading member dimension everywhere
+        E = ensemble.shape[0]
+        history = history.expand(E, *history.shape)
+        mean, std = ensemble["out_mean"].unsqueeze(1), ensemble["out_std"].unsqueeze(1)
+        loss = history.new_zeros(E)
     steps = batch.shape[1]
     for step in range(steps):
-        action = actions[:, step]
+        action = actions[:, step].expand(history.shape[:-2])
         window = model.with_action(history, action)
-        pred = model.normalized_delta(window)
+        pred = model.normalized_delta(window) if ensemble is None else model.ensemble_normalized_delta(window, ensemble)
         # the true difference, in the frame of the true previous state (Eq. 4: compare differences)
-        target = model.normalize_delta(ego_delta(states[:, step], next_states[:, step]))
-        loss = loss + ((pred - target) ** 2).sum(-1).mean()
+        target = (ego_delta(states[:, step], next_states[:, step]) - mean) / std
+        loss = loss + ((pred - target) ** 2).sum(-1).mean(-1)
         if step + 1 < steps:
-            current = history[:, -1, :S]
-            predicted = apply_delta(current, pred * model.out_std + model.out_mean)
+            current = history[..., -1, :S]
+            predicted = apply_delta(current, pred * std + mean)
             history = model.next_window(history, action, predicted)
     return loss / steps
 
@@ -63,9 +72,14 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase) -> torch.Tensor:
 def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:
     """The L-step loss (Eq. 4): roll the model forward autoregressively from the true window at the
     start of each ``[L]`` slice with the true actions, and compare predicted and true state differences
-    (normalized egocentric differences, squared error, averaged over steps and batch)."""
+    (normalized egocentric differences, squared error, averaged over steps and batch).
+
+    ``params`` with a batch dimension (an ensemble's stacked parameters, ``[E]``) gives every member's loss,
+    ``[E]``, in one batched pass (equal to each member's own loss)."""
     if batch.ndim != 2:
         raise ValueError(f"multistep_loss expects a [B, L] batch, got batch_size {tuple(batch.shape)}")
+    if params is not None and params.batch_dims > 0:
+        return _rollout_loss(model, batch, ensemble=params)
     with using(model, params):
         return _rollout_loss(model, batch)
 

@@ -92,12 +92,19 @@ class FTMLTrainer:
     # ----- updates --------------------------------------------------------------------------------
     def _apply(self, loss: torch.Tensor) -> float:
         value = float(loss.detach())
+        if math.isfinite(value):
+            self.optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+        return self.step(value)
+
+    def step(self, value: float) -> float:
+        """Apply the gradients now in the parameters' ``.grad`` for a loss of ``value``; skip the update (and
+        count it) when the loss or a gradient is not finite. Returns ``value`` (NaN for a bad gradient)."""
         if not math.isfinite(value):
             self.skipped += 1
+            self.optimizer.zero_grad(set_to_none=True)
             log.warning("non-finite model loss (%s): update skipped, parameters kept", value)
             return value
-        self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
         grads = [p.grad for p in self.model.parameters() if p.grad is not None]
         if not all(torch.isfinite(g).all() for g in grads):
             self.skipped += 1
