@@ -220,6 +220,9 @@ def test_retimed_explore_is_explore_at_p0_and_retimes_explore_prompts_otherwise(
     a, b = _collect(RetimedExplore(p=1.0, seed=1)), _collect(RetimedExplore(p=1.0, seed=1))
     assert torch.equal(a["action"], b["action"])  # seeded
     assert (a["action"][: explore.shape[0]] != explore["action"][: a.shape[0]]).any()
+    from pernav.trainer.collect import episode_metrics
+
+    assert episode_metrics(explore)["left_explore"] == 0.0 and 0.0 < episode_metrics(a)["left_explore"] < 1.0
     # it only re-times: every instruction it plays is one explore plays on this route or one the mask allows
     masks = a["action_mask"][:, 0]
     said = set(explore["action"].tolist()) | {0}

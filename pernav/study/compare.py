@@ -40,6 +40,9 @@ def _figures(rounds: list[dict[str, Any]], method: str) -> dict[str, Any]:
     for key in ("collisions", "missed_turns", "extra_distance"):
         out[key] = float(sum(e.get(key, 0) for r in rounds for e in r[method]["episodes"]))
         out[f"explore_{key}"] = float(sum(e.get(key, 0) for r in rounds for e in r["explore"]["episodes"]))
+    left = [e["left_explore"] for r in rounds for e in r[method]["episodes"] if e.get("left_explore") is not None]
+    if left:  # how often the method's policy departs from explore at all
+        out["left_explore"] = float(np.mean(left))
     if all("oracle" in r for r in rounds):
         out["gap_closed"] = gap_closed(costs("explore", rounds), costs(method, rounds), costs("oracle", rounds))
         head = [r for r in rounds if r["oracle"]["tracking_cost"] < (1 - HEADROOM) * r["explore"]["tracking_cost"]]

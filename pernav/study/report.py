@@ -132,8 +132,8 @@ def comparison_table(comparison: dict[str, Any]) -> str:
     """Markdown of :func:`pernav.study.compare.compare`: paired differences to explore with 95 % CIs."""
     lines = ["| town | method | rounds | cost (explore) | explore − method (95 % CI) | gap closed (95 % CI) | gap "
              "closed, rounds with headroom (n) | cost / explore, rounds without | collisions (explore) | missed turns "
-             "(explore) | extra m (explore) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "(explore) | extra m (explore) | steps off explore |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def ci(x: dict[str, Any] | None, pct: bool = False) -> str:
         if not x or x["mean"] != x["mean"]:  # NaN: no gap to close
@@ -143,7 +143,7 @@ def comparison_table(comparison: dict[str, Any]) -> str:
 
     for town, methods in comparison.items():
         for method, f in methods.items():
-            no_head = f.get("relative_cost_no_headroom")
+            no_head, left = f.get("relative_cost_no_headroom"), f.get("left_explore")
             def with_explore(key: str, f: dict[str, Any] = f) -> str:
                 return f"{f[key]:.0f} ({f.get('explore_' + key, float('nan')):.0f})"
 
@@ -152,7 +152,8 @@ def comparison_table(comparison: dict[str, Any]) -> str:
                          f"{ci(f.get('gap_closed'), True)} | {ci(f.get('gap_closed_headroom'), True)} "
                          f"({f.get('headroom_rounds', 0)}) | {'–' if no_head is None else f'{no_head:.2f}'} | "
                          f"{with_explore('collisions')} | {with_explore('missed_turns')} | "
-                         f"{with_explore('extra_distance')} |")
+                         f"{with_explore('extra_distance')} | "
+                         f"{'–' if left is None else f'{100 * left:.0f} %'} |")
     return "\n".join(lines)
 
 

@@ -60,6 +60,9 @@ def episode_metrics(trajectory: TensorDictBase) -> dict[str, Any]:
         "extra_distance": round(float(last["extra_distance"]), 1),
         "completed": bool(last["completed"]),
         "steps": int(trajectory.shape[0]),
+        # the share of steps at which the policy did not play explore's action (0 for explore itself)
+        "left_explore": round(float((trajectory["action"].reshape(-1) != trajectory["explore_action"].reshape(-1))
+                                    .float().mean()), 4) if "explore_action" in trajectory.keys() else None,
     }
 
 
