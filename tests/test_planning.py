@@ -125,15 +125,42 @@ def test_retiming_planner_stays_with_explore_where_the_ensemble_disagrees():
     root = _root()
     eager = {"horizon": 4, "advance": 2, "delay": 1, "margin": -1e12, "rel_margin": 0.0, "agree": 1e-9}
     confident = RetimingPlanner(env, max_spread=None, **eager)
-    cautious = RetimingPlanner(env, max_spread=1e-6, **eager)
+    cautious = RetimingPlanner(env, max_spread=1e-6, rel_spread=0.0, **eager)
     for planner in (confident, cautious):
         planner.params = [meta_parameters(m).detach() for m in members]
     _, free = confident.decide(root)
     _, held = cautious.decide(root)
     assert free.chosen != free.explore  # with no spread test the cheapest candidate wins
     assert held.chosen == held.explore  # two random members disagree by far more than a micrometre
-    _, one = RetimingPlanner(env, max_spread=1e-6, **eager).decide(root)  # one row: spread 0, no test
+    _, one = RetimingPlanner(env, max_spread=1e-6, rel_spread=0.0, **eager).decide(root)  # one row: no test
     assert one.chosen == int(one.costs.argmin())
+
+
+def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spread_with_the_effect():
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
+    root = _root()
+    probe = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    _, res = probe.decide(root)
+    N, e = res.candidates.shape[0], res.explore
+    j = next(i for i in range(N) if int(res.candidates[i, 0]) != int(res.candidates[e, 0]))
+
+    def crafted(gains: tuple[float, float], effects: tuple[float, float]):
+        cost = torch.full((2, N), 100.0)
+        cost[:, j] = 100.0 - torch.tensor(gains)
+        pos = torch.zeros(2, N, 4, 2)
+        pos[:, j, :, 0] = torch.tensor(effects)[:, None]  # each row moves the car this far off explore's plan
+        return lambda *_: (cost, pos)
+
+    def leaves(gains, effects, **kw) -> bool:
+        planner = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=20.0, rel_margin=0.0, **kw)
+        planner.costs = crafted(gains, effects)
+        return planner.decide(root)[1].chosen == j
+
+    assert leaves((60.0, 50.0), (30.0, 20.0))  # both clear 20; spread 5 m <= 2 + 0.5 * 25 m
+    assert not leaves((95.0, 10.0), (30.0, 20.0))  # mean 52.5 clears it, the worst member does not
+    assert leaves((95.0, 10.0), (30.0, 20.0), agree=0.5)
+    assert not leaves((60.0, 50.0), (30.0, 20.0), rel_spread=0.0)  # a fixed 2 m bound holds it back
+    assert not leaves((60.0, 50.0), (40.0, 0.0))  # spread 20 m > 2 + 0.5 * 20 m: they disagree on the effect
 
 
 def test_retiming_planner_with_21_actions_plans_every_playback():

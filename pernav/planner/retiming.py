@@ -21,10 +21,11 @@ Each candidate is imagined from the current state by the env's ``imagine`` (a le
 The first term is the env's own step cost; the second makes a missed turn or a circled roundabout cost
 inside the horizon (the env re-routes after a miss, so its goals alone would forgive it); the third keeps
 stopping from looking cheap. The planner leaves explore only where the imagined gain is clear: the best
-candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` (relative) on average and in
-at least ``agree`` of the rows (ensemble members or samples), and the rows must agree on what the re-timing
-does to the car's path (the spread of its effect, at most ``max_spread`` metres); otherwise it plays
-explore's action. So a poor or uncertain model costs little.
+candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` (relative) on average *and*
+in at least ``agree`` of the rows (ensemble members or samples; with ``agree=1`` the worst member's gain must
+clear it: a lower confidence bound), and the rows must agree on what the re-timing does to the car's path (the
+spread of its effect, at most ``max_spread`` metres plus ``rel_spread`` times the effect's size); otherwise it
+plays explore's action. So a poor or uncertain model costs little.
 
 Reads ``"history"``, ``"explore_future"`` ``[F]``, ``"route_ahead"`` ``[P, 2]`` and ``"action_mask"`` (the
 navigation env provides them, :mod:`pernav.env.planning`); writes ``"action"``.
@@ -105,16 +106,19 @@ class RetimingPlanner(MPCPlannerBase):
         route_weight: weight of the squared distance to the planned route.
         progress_weight: reward per metre of route progress at the horizon.
         margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
-        agree: fraction of the rows (ensemble members, samples) that must each see a gain.
-        max_spread: metres; leave explore only for a candidate whose effect (its positions minus explore's plan's)
-            the rows agree on within this mean distance over the horizon (:meth:`effect_spread`; ``None``: no
-            such test). With one row (one model, or one true-model sample) the spread is 0.
+        agree: fraction of the rows (ensemble members, samples) that must each see a gain above the margin.
+        max_spread, rel_spread: leave explore only for a candidate whose effect (its positions minus explore's
+            plan's) the rows agree on within ``max_spread + rel_spread * size`` metres (:meth:`effect_spread`;
+            the size is the effect's largest mean distance over the horizon; ``max_spread=None``: no such test).
+            A re-timing that changes whether the car takes an exit moves it tens of metres; members that agree
+            on that but not to the metre should not be overruled by a fixed bound. With one row (one model, or
+            one true-model sample) the spread is 0.
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 3, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 max_spread: float | None = 2.0, playbacks: int | None = None) -> None:
+                 max_spread: float | None = 2.0, rel_spread: float = 0.5, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -124,6 +128,9 @@ class RetimingPlanner(MPCPlannerBase):
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.margin, self.rel_margin, self.agree = float(margin), float(rel_margin), float(agree)
         self.max_spread = None if max_spread is None else float(max_spread)
+        if rel_spread < 0:
+            raise ValueError(f"rel_spread must be >= 0, got {rel_spread}")
+        self.rel_spread = float(rel_spread)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -180,10 +187,11 @@ class RetimingPlanner(MPCPlannerBase):
         mean = cost.mean(0)
         gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
         need = self.margin + self.rel_margin * mean[explore].abs()
-        ok = (gain.mean(0) > need) & ((gain > 0).to(cost.dtype).mean(0) >= self.agree)
+        ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
-            ok &= spread <= self.max_spread
+            size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
+            ok &= spread <= self.max_spread + self.rel_spread * size
         self.decisions += 1
         if bool(ok.any()):
             chosen = int(torch.where(ok, mean, torch.full_like(mean, float("inf"))).argmin())
