@@ -72,6 +72,10 @@ def test_candidate_plans_are_explore_re_timed_unique_and_explore_is_one_of_them(
     far, _ = candidate_plans(torch.zeros(10, dtype=torch.long).index_fill(0, torch.tensor([9]), 2), 0,
                              torch.tensor([0, 2]), 5, 3, 2)
     assert not (far[:, 0] != 0).any()  # nothing due within reach: no prompt now
+    due, _ = candidate_plans(torch.tensor([1, 1, 0, 4, 4, 0, 0, 0]), 0, torch.tensor([0, 1]), 4, 3, 0)
+    assert [0, 4, 4, 0] not in due.tolist() and [4, 4, 0, 0] not in due.tolist()  # "turn left" is never dropped
+    held, _ = candidate_plans(torch.tensor([3, 3, 0, 1, 1, 0, 0, 0]), 3, torch.tensor([0, 1, 3]), 4, 3, 0)
+    assert [1, 1, 0, 0] in held.tolist()  # the "prepare" already playing may give way to the "turn" early
 
 
 def _root(n_actions: int = 7) -> TensorDict:

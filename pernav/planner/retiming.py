@@ -5,7 +5,8 @@ consequence for a slow driver: audio, reaction, commit and the turn take 8-12 s.
 small tree whose branches are the explore policy's *own* upcoming prompts re-timed (the MPC policy is a
 residual of explore, as the paper intends), over a horizon long enough to see the turn (12 s by default):
 
-* ``advance k`` (k = 1..A): the explore plan ``k`` steps early (its next prompt said now, if it is within k);
+* ``advance k`` (k = 1..A): the explore plan ``k`` steps early (its next prompt said now, if it is within k;
+  never skipping an instruction explore would say before it);
 * ``delay k`` (k = 1..D): silence (or the held prompt) for ``k`` more steps, then the explore plan;
 * ``say a now``: every instruction the situation allows at this step (the fine choice near a junction),
   held for the horizon (a held instruction is not replayed);
@@ -82,13 +83,19 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     [0, 0, 4, 4]
     >>> [4, 4, 2, 2] in seqs.tolist() and [2, 2, 2, 2] in seqs.tolist()
     True
+    >>> seqs, e = candidate_plans(torch.tensor([1, 1, 0, 4, 4, 0, 0, 0]), 0, torch.tensor([0, 1]), 4, 3, 0)
+    >>> seqs.tolist()  # advancing past the "turn left" due now would drop it: not a candidate
+    [[1, 0, 4, 4], [1, 1, 0, 4], [1, 1, 1, 1]]
     """
     H = horizon
     pad = future[-1:].expand(H + advance)  # past the known future the plan stays as it ends
     future = torch.cat([future, pad])
     held = int(future[0]) if int(future[0]) == last and last != 0 else 0
     rows = [future[:H]]
-    rows += [future[k:k + H] for k in range(1, advance + 1)]
+    # advancing the plan by k must not drop an instruction it would say within those k steps (one not held
+    # now): "turn left" due now, advanced past, would leave the driver with the *next* manoeuvre's prompt
+    skipped = [{int(a) for a in future[:k].tolist()} - {0, last, int(future[k])} for k in range(advance + 1)]
+    rows += [future[k:k + H] for k in range(1, advance + 1) if not skipped[k]]
     rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)]
     if bool(future[: advance + 1].any()):  # a prompt is due within reach: the fine choices now as well
         rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist() if a != 0]
