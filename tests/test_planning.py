@@ -156,6 +156,7 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
         return lambda *_: (cost, pos)
 
     def leaves(gains, effects, **kw) -> bool:
+        kw = {"rel_spread": 0.5, **kw}
         planner = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=20.0, rel_margin=0.0, **kw)
         planner.costs = crafted(gains, effects)
         return planner.decide(root)[1].chosen == j

@@ -117,15 +117,16 @@ class RetimingPlanner(MPCPlannerBase):
         max_spread, rel_spread: leave explore only for a candidate whose effect (its positions minus explore's
             plan's) the rows agree on within ``max_spread + rel_spread * size`` metres (:meth:`effect_spread`;
             the size is the effect's largest mean distance over the horizon; ``max_spread=None``: no such test).
-            A re-timing that changes whether the car takes an exit moves it tens of metres; members that agree
-            on that but not to the metre should not be overruled by a fixed bound. With one row (one model, or
-            one true-model sample) the spread is 0.
+            ``rel_spread`` > 0 lets members that agree a re-timing moves the car tens of metres (an exit taken
+            or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
+            it gained (docs/planning.md), so it is 0 by default. With one row (one model, or one true-model
+            sample) the spread is 0.
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 3, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 max_spread: float | None = 2.0, rel_spread: float = 0.5, playbacks: int | None = None) -> None:
+                 max_spread: float | None = 2.0, rel_spread: float = 0.0, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
