@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 
+import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
 from pernav.cli import main
 from pernav.study import preset, run_study
@@ -119,7 +120,9 @@ def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplo
         loss = real(*args, **kwargs)
         return loss * torch.tensor(float("nan")) if calls["n"] in (5, 30) else loss
 
+    # single models train through ftml, ensembles through one batched pass in ensemble: NaN both
     monkeypatch.setattr(ftml, "multistep_loss", sometimes_nan)
+    monkeypatch.setattr(ensemble, "multistep_loss", sometimes_nan)
     cfg = preset("smoke")
     cfg.methods = ["explore", "sysid", "adapt"]
     results = run_study(cfg, tmp_path / "nan", report=False)
