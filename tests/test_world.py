@@ -157,3 +157,31 @@ def test_plan_route_passes_through_goals():
     start, goal = town.road_lanes[0], town.road_lanes[-1]
     route = plan_route(town, start, 5.0, [(goal, 20.0)])
     assert route.lanes[0] == start and route.lanes[-1][:2] == goal[:2]
+
+
+def test_scalar_clamp_is_np_clip():
+    """The simulator's fast scalar clamp gives np.clip's value for every kind of input, NaN and infinities included."""
+    from pernav.world.simulation import _clamp
+
+    rng = np.random.default_rng(0)
+    values = [*rng.normal(0, 3, 200), 0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, np.float64(2.5), 3]
+    for lo, hi in [(-1, 1), (-np.pi / 4, np.pi / 4), (0.0, 1.0), (-7.0, 3.0)]:
+        for x in values:
+            got, want = _clamp(x, lo, hi), float(np.clip(x, lo, hi))
+            assert (np.isnan(got) and np.isnan(want)) or got == want, (x, lo, hi)
+
+
+def test_leader_lookups_cached_per_path_equal_a_fresh_build():
+    """leader_of's per-path lookups, cached on the town, equal the ones built from scratch for every path."""
+    from pernav.world.simulation import _path_ahead
+
+    town = get_town("Town3")
+    lanes = list(town.routes[0].lanes)
+    for start in range(len(lanes)):
+        path = tuple(lanes[start:start + 4])
+        cached = _path_ahead(town, path)
+        assert _path_ahead(town, path) is cached  # a cache hit
+        town.__dict__.pop("_path_ahead_cache")
+        assert _path_ahead(town, path) == cached  # rebuilt from scratch: equal
+        ahead, starts, _ = cached
+        assert list(ahead) == list(path) and len(starts) == len(path) and starts[0] == 0.0
