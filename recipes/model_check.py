@@ -12,7 +12,7 @@ the true and the predicted divergence, and the mean absolute error, for:
 
 Run (after ``make study`` or ``pernav study --preset default --out runs/default``):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/model_check.py --study runs/default [--town Town1]
-[--json docs/figures/model_check/model_check.json] [--plot docs/figures/model_check/divergence.png]
+[--json docs/figures/model_check/model_check_Town1.json] [--plot docs/figures/model_check/divergence_Town1.png]
 """
 
 from __future__ import annotations
