@@ -8,9 +8,9 @@ driver, population samples) drives the same episodes (route r with seed 1000 + r
   re-seeded copies of the live env, averaged), i.e. no model error: its loss to the oracle is planning error;
 * ``paper@true``: the paper's planner (horizon 5, masked tree, explore bonus) on the same true simulator.
 
-With ``--study DIR`` it adds ``retime@learned`` with each learner's final model from that study's checkpoints
-(adapted on one explore trajectory of the driver, as in the study), whose loss to ``retime@true`` is model
-error. Paired differences to explore carry 95 % bootstrap CIs. Results are written as jobs finish.
+Model error is the rest: a study's learner (the same planner on the learned, adapted model; ``pernav study``)
+against ``retime@true`` (``PanelJob`` also drives ``"retime@learned"`` given a model and its parameters).
+Paired differences to explore carry 95 % bootstrap CIs. Results are written as jobs finish.
 
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
 [--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
