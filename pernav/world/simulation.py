@@ -296,7 +296,7 @@ class TrafficCar(PathCar, IDMVehicle):
         if stop is not None:
             acc = min(acc, idm_acceleration(self.speed, desired, stop, self.speed, 1.0, 2.5, 4.0))
         steering = _clamp(self.lane_steering(0.6), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE)
-        Vehicle.act(self, {"steering": float(steering), "acceleration": _clamp(acc, -7.0, 3.0)})
+        Vehicle.act(self, {"steering": steering, "acceleration": _clamp(acc, -7.0, 3.0)})
 
     def step(self, dt: float) -> None:
         Vehicle.step(self, dt)
