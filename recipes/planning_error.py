@@ -14,6 +14,7 @@ Paired differences to explore carry 95 % bootstrap CIs. Results are written as j
 
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
 [--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
+[--plot PNG]
 """
 
 from __future__ import annotations
@@ -63,6 +64,44 @@ def table(episodes: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def scatter(episodes: list[dict], path: str) -> None:
+    """Each method's cost against explore's on the same episode (log-log, one panel per town).
+
+    Points below the diagonal beat explore on that episode; pairing per episode lets methods that drove fewer
+    routes (``paper@true``) share the figure without comparing different episodes.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    explore = {(e["driver"], e["town"], e["route"], e["seed"]): e["tracking_cost"]
+               for e in episodes if e["method"] == "explore"}
+    methods = [m for m in dict.fromkeys(e["method"] for e in episodes) if m != "explore"]
+    fig, axes = plt.subplots(1, len(TOWNS), figsize=(5 * len(TOWNS), 4.4), squeeze=False)
+    for ax, town in zip(axes[0], TOWNS, strict=True):
+        for method, marker in zip(methods, "o^sDvP<>", strict=False):  # at most 8 methods get a marker
+            pairs = [(explore[k], e["tracking_cost"]) for e in episodes
+                     if e["method"] == method and e["town"] == town
+                     and (k := (e["driver"], e["town"], e["route"], e["seed"])) in explore]
+            if pairs:
+                x, y = zip(*pairs, strict=True)
+                ax.scatter(x, y, marker=marker, alpha=0.7, label=f"{method} ({len(pairs)})")
+        lo, hi = ax.get_xlim()[0], max(ax.get_xlim()[1], ax.get_ylim()[1])
+        ax.plot([lo, hi], [lo, hi], "k:", lw=1)
+        ax.set(xscale="log", yscale="log", xlabel="explore's tracking cost", ylabel="method's tracking cost",
+               title=f"{town}: per episode; below the diagonal beats explore")
+        for axis in (ax.xaxis, ax.yaxis):  # plain numbers; minor log labels would overlap
+            axis.set_major_locator(LogLocator(subs=(1, 2, 5)))
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_formatter(NullFormatter())
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--routes", type=int, default=5, help="routes 0..N-1 of each town")
@@ -72,6 +111,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--json", default="planning_error.json")
     ap.add_argument("--resume", action="store_true", help="keep the episodes already in --json")
+    ap.add_argument("--plot", default=None, help="scatter of each episode's cost vs explore's "
+                    "(default: --json with .png)")
     args = ap.parse_args()
     bad = [d for d in args.drivers if d not in PANEL]
     if bad:
@@ -92,6 +133,7 @@ def main() -> None:
             with open(args.json, "w") as fh:
                 json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, fh, indent=1)
     print(table(episodes))
+    scatter(episodes, args.plot or str(Path(args.json).with_suffix(".png")))
 
 
 if __name__ == "__main__":
