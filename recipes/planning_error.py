@@ -23,7 +23,7 @@ import argparse
 import json
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from itertools import product
+from itertools import cycle, product
 from pathlib import Path
 
 import numpy as np
@@ -35,11 +35,16 @@ from pernav.diagnostics.stats import gap_closed, paired_difference
 TOWNS = ("Town1", "Town3")
 
 
+def episode_key(e: dict) -> tuple:
+    """What pairs episodes across methods: the same driver, town, route and seed."""
+    return e["driver"], e["town"], e["route"], e["seed"]
+
+
 def table(episodes: list[dict]) -> str:
     """Markdown: per method, mean cost, collisions, missed turns, extra distance, difference to explore."""
     by = defaultdict(dict)
     for e in episodes:
-        by[e["method"]][(e["driver"], e["town"], e["route"], e["seed"])] = e
+        by[e["method"]][episode_key(e)] = e
     lines = ["| method | episodes | tracking cost | explore − method (95 % CI) | gap closed (95 % CI) | collisions "
              "(explore) | missed turns (explore) | extra m (explore) |", "|---|---|---|---|---|---|---|---|"]
     for method, eps in by.items():
@@ -76,15 +81,13 @@ def scatter(episodes: list[dict], path: str) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
-    explore = {(e["driver"], e["town"], e["route"], e["seed"]): e["tracking_cost"]
-               for e in episodes if e["method"] == "explore"}
+    explore = {episode_key(e): e["tracking_cost"] for e in episodes if e["method"] == "explore"}
     methods = [m for m in dict.fromkeys(e["method"] for e in episodes) if m != "explore"]
     fig, axes = plt.subplots(1, len(TOWNS), figsize=(5 * len(TOWNS), 4.4), squeeze=False)
     for ax, town in zip(axes[0], TOWNS, strict=True):
-        for method, marker in zip(methods, "o^sDvP<>", strict=False):  # at most 8 methods get a marker
+        for method, marker in zip(methods, cycle("o^sDv"), strict=False):
             pairs = [(explore[k], e["tracking_cost"]) for e in episodes
-                     if e["method"] == method and e["town"] == town
-                     and (k := (e["driver"], e["town"], e["route"], e["seed"])) in explore]
+                     if e["method"] == method and e["town"] == town and (k := episode_key(e)) in explore]
             if pairs:
                 x, y = zip(*pairs, strict=True)
                 ax.scatter(x, y, marker=marker, alpha=0.7, label=f"{method} ({len(pairs)})")
@@ -124,7 +127,7 @@ def main() -> None:
     episodes = []
     if args.resume and Path(args.json).is_file():  # keep finished episodes, run only the missing ones
         episodes = json.loads(Path(args.json).read_text())["episodes"]
-        done = {(e["driver"], e["town"], e["route"], e["seed"], e["method"]) for e in episodes}
+        done = {(*episode_key(e), e["method"]) for e in episodes}
         jobs = [j for j in jobs if (j.driver, j.town, j.route, j.seed, j.method) not in done]
     with ProcessPoolExecutor(args.workers) as pool:
         futures = [pool.submit(drive_panel_episode, j) for j in jobs]
