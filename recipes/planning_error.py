@@ -21,52 +21,15 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from itertools import cycle, product
 from pathlib import Path
 
-import numpy as np
 from tqdm import tqdm
 
-from pernav.diagnostics.panel import PANEL, PanelJob, drive_panel_episode
-from pernav.diagnostics.stats import gap_closed, paired_difference
+from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode, episode_key
 
 TOWNS = ("Town1", "Town3")
-
-
-def episode_key(e: dict) -> tuple:
-    """What pairs episodes across methods: the same driver, town, route and seed."""
-    return e["driver"], e["town"], e["route"], e["seed"]
-
-
-def table(episodes: list[dict]) -> str:
-    """Markdown: per method, mean cost, collisions, missed turns, extra distance, difference to explore."""
-    by = defaultdict(dict)
-    for e in episodes:
-        by[e["method"]][episode_key(e)] = e
-    lines = ["| method | episodes | tracking cost | explore − method (95 % CI) | gap closed (95 % CI) | collisions "
-             "(explore) | missed turns (explore) | extra m (explore) |", "|---|---|---|---|---|---|---|---|"]
-    for method, eps in by.items():
-        keys = [k for k in eps if k in by["explore"] and k in by["oracle"]]
-        if not keys:
-            continue
-        cost = [eps[k]["tracking_cost"] for k in keys]
-        ex = [by["explore"][k]["tracking_cost"] for k in keys]
-        orc = [by["oracle"][k]["tracking_cost"] for k in keys]
-        d = paired_difference(ex, cost)
-        g = gap_closed(ex, cost, orc)
-
-        def total(key: str, src: dict, keys: list = keys) -> float:
-            return sum(src[k][key] for k in keys)
-
-        lines.append(f"| {method} | {len(keys)} | {np.mean(cost):.0f} | {d['mean']:+.0f} "
-                     f"[{d['low']:+.0f}, {d['high']:+.0f}] "
-                     f"| {g['mean']:.0%} [{g['low']:.0%}, {g['high']:.0%}] | {total('collisions', eps):.0f} "
-                     f"({total('collisions', by['explore']):.0f}) | {total('missed_turns', eps):.0f} "
-                     f"({total('missed_turns', by['explore']):.0f}) | {total('extra_distance', eps):.0f} "
-                     f"({total('extra_distance', by['explore']):.0f}) |")
-    return "\n".join(lines)
 
 
 def scatter(episodes: list[dict], path: str) -> None:
@@ -135,7 +98,7 @@ def main() -> None:
             episodes.append(f.result())
             with open(args.json, "w") as fh:
                 json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, fh, indent=1)
-    print(table(episodes))
+    print(comparison_table(episodes))
     scatter(episodes, args.plot or str(Path(args.json).with_suffix(".png")))
 
 

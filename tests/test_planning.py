@@ -8,6 +8,7 @@ import torch
 from tensordict import TensorDict
 
 from pernav.diagnostics import TrueDynamicsEnv
+from pernav.diagnostics.panel import PanelJob, comparison_table, drive_panel_episode
 from pernav.diagnostics.stats import bootstrap_ci, gap_closed, paired_difference
 from pernav.env.navigation import NavigationEnv
 from pernav.model import DynamicsModel
@@ -221,6 +222,27 @@ def test_compare_pools_rounds_and_separates_rounds_without_headroom():
     assert out["rounds"] == 2 and out["headroom_rounds"] == 1
     assert out["gap_closed_headroom"]["mean"] == pytest.approx(0.5)
     assert out["relative_cost_no_headroom"] == pytest.approx(105.0 / 101.0)
+
+
+def test_comparison_table_pairs_episodes_by_driver_town_route_and_seed():
+    def ep(method: str, route: int, cost: float, seed: int = 0) -> dict:
+        return {"driver": "d", "town": "T", "route": route, "seed": seed, "method": method, "tracking_cost": cost,
+                "collisions": 0, "missed_turns": route, "extra_distance": 0.0}
+
+    episodes = [ep(m, r, c + r) for r in range(4) for m, c in (("explore", 10.0), ("oracle", 4.0), ("x", 7.0))]
+    episodes.append(ep("x", 0, 1000.0, seed=9))  # no explore/oracle episode with this seed: left out
+    rows = {line.split("|")[1].strip(): line.split("|")[2:-1] for line in comparison_table(episodes).splitlines()[2:]}
+    assert rows["x"][0].strip() == "4" and rows["x"][1].strip() == "8"  # mean of 7, 8, 9, 10 on the paired four
+    assert rows["x"][2].startswith(" +3 [+3, +3]") and rows["x"][3].startswith(" 50% [50%, 50%]")
+    assert rows["x"][5].strip() == "6 (6)"  # missed turns summed over the same episodes as explore's
+
+
+def test_panel_job_on_a_learned_model_reads_the_history_the_model_was_trained_with():
+    model = DynamicsModel(n_actions=7, K=10, hidden=(8,))
+    spec = {"config": model.config(), "state": model.state_dict()}
+    m = drive_panel_episode(PanelJob("user4, keyboard (fast)", "Town1", 0, 0, "retime@learned", n_traffic=0,
+                                     model=spec))
+    assert m["method"] == "retime@learned" and m["steps"] > 0 and 0.0 <= m["left_explore"] <= 1.0
 
 
 def test_extra_distance_is_zero_on_a_clean_drive_and_never_negative():
