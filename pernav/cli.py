@@ -125,6 +125,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
                         "at random; the default preset's choice)")
+    p.add_argument("--calibration", type=int, metavar="N",
+                   help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
+    p.add_argument("--personal-updates", type=int, metavar="N",
+                   help="adapt by N updates on the round user's drives instead of one step on tau (0: the paper's U)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -154,6 +158,10 @@ def _study(args: argparse.Namespace) -> None:
         cfg.methods = [m for m in METHODS if m in args.methods]
     if args.collect is not None:
         cfg.collect = args.collect
+    if args.calibration is not None:
+        cfg.calibration = args.calibration
+    if args.personal_updates is not None:
+        cfg.train.personal_updates = args.personal_updates
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

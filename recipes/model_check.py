@@ -8,6 +8,8 @@ the true and the predicted divergence, and the mean absolute error, for:
 
 * ``meta``: adapt's final meta model from a study (``--study DIR``, its Town checkpoint);
 * ``adapted``: that model after one adaptation step on one explore trajectory of the driver (as in the study);
+* ``personal``: the meta model fine-tuned as the default study now adapts (100 updates on that explore
+  trajectory and four re-timed drives of the driver: ``calibration`` 4, ``personal_updates`` 100);
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).
 
 Run (after ``make study`` or ``pernav study --preset default --out runs/default``):
@@ -31,27 +33,32 @@ from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.planner.factory import env_planning_config
+from pernav.planner.retiming import RetimedExplore
+from pernav.study.runner import final_models
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import drive, history_env
+from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import FTMLTrainer, TrainConfig
 from pernav.world.drivers import Context
 
 DELAY, STEPS = 3, (5, 10)
 
 
-def load_meta(study: Path, town: str) -> tuple[DynamicsModel, list]:
-    """adapt's final meta model from a study's checkpoint: the module and every ensemble member's state."""
-    manifest = json.loads((study / "checkpoints" / town / "manifest.json").read_text())
-    state = torch.load(study / "checkpoints" / town / manifest["folder"] / "state.pt", weights_only=False)
-    members = state["learners"]["adapt"]["members"]
-    model = DynamicsModel(**members[0]["model_config"])
-    return model, [member["model"] for member in members]
-
-
-def driver_env(driver: str, town: str, route: int, seed: int, K: int):
+def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: dict | None = None):
     user, context = PANEL[driver]
     return history_env(town, {"route": route, "user": user, "context": Context(**context)},
-                       config={"n_traffic": 4}, seed=seed, K=K)
+                       config={"n_traffic": 4, **(config or {})}, seed=seed, K=K)
+
+
+def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: str) -> list:
+    """The members fine-tuned as the default study adapts (``calibration`` 4, ``personal_updates`` 100): on
+    ``tau`` and four re-timed drives of the driver."""
+    planning = env_planning_config({"kind": "retime"})  # the explore plan as far ahead as the re-timings reach
+    drives = [drive(driver_env(driver, town, k, 780 + k, meta.K, planning), RetimedExplore(seed=780 + k))
+              for k in range(4)]
+    train = TrainConfig(L=5, batch=128, K=meta.K, hidden=list(meta.hidden))
+    return EnsembleTrainer.from_states(meta.config(), members, train).fine_tuned([tau, *drives], 100, seed=0)
 
 
 def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsModel:
@@ -105,7 +112,7 @@ def main() -> None:
     if not (study / "checkpoints" / args.town / "manifest.json").is_file():
         print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
         sys.exit(2)
-    meta, members = load_meta(study, args.town)
+    meta, members = final_models(study, args.town)
     rows, pooled = {}, {}
     for driver in args.drivers:
         tau = drive(driver_env(driver, args.town, 7, 77, meta.K), explore_module())
@@ -117,6 +124,7 @@ def main() -> None:
         own = per_driver_model(driver, args.town, meta)
         imagined = ImaginedNavigationEnv(make_world_model(meta))
         models = {"meta": (imagined, params), "adapted": (imagined, adapted),
+                  "personal": (imagined, personal_params(meta, members, tau, driver, args.town)),
                   "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
         div = approach_divergences(driver, args.town, models)
         for name, values in div.items():
@@ -138,13 +146,13 @@ def main() -> None:
                                           indent=1))
     if args.plot:
         scatter(pooled, args.plot, args.town)
-    print("| driver | states | true divergence m (5 s, 10 s) | corr meta | corr adapted | corr per-driver |")
-    print("|---|---|---|---|---|---|")
+    names = [k for k in overall]
+    print("| driver | states | true divergence m (5 s, 10 s) | " + " | ".join(f"corr {n}" for n in names) + " |")
+    print("|---|---|---|" + "---|" * len(names))
     for d, r in rows.items():
-        print(f"| {d} | {r['states']} | {r['true_mean']} | {r['meta']['corr']} | {r['adapted']['corr']} "
-              f"| {r['per-driver']['corr']} |")
+        print(f"| {d} | {r['states']} | {r['true_mean']} | " + " | ".join(str(r[n]["corr"]) for n in names) + " |")
     print(f"| all drivers | {pooled['true'].shape[0]} | {[round(float(x), 2) for x in pooled['true'].mean(0)]} | "
-          f"{overall['meta']} | {overall['adapted']} | {overall['per-driver']} |")
+          + " | ".join(str(overall[n]) for n in names) + " |")
 
 
 def scatter(pooled: dict[str, np.ndarray], path: str, town: str) -> None:

@@ -3,6 +3,7 @@ and the held-out round loss."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 from tensordict import TensorDict
 
@@ -101,3 +102,50 @@ def test_batched_ensemble_update_equals_each_member_stepping_alone():
             for x, y in zip(a.model.parameters(), b.model.parameters(), strict=True):
                 torch.testing.assert_close(x, y, rtol=1e-4, atol=1e-5)
         assert not torch.equal(batched.members[0].model.net[0].weight, make(first_order).members[0].model.net[0].weight)
+
+
+def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_the_ensemble_alone():
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    torch.manual_seed(0)
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(30), tau=True)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3), size=2, seed=1)
+    ens.fit_normalization()
+    user = [_trajectory(25, seed=7), _trajectory(20, seed=8)]
+    before = [meta_parameters(m.model).detach().clone() for m in ens.members]
+    params = ens.fine_tuned(user, updates=60, seed=3)
+    windows = torch.cat([trajectory_windows(t, 3, 3) for t in user])
+    model = ens.model
+    with torch.no_grad():
+        for p, b in zip(params, before, strict=True):
+            assert float(multistep_loss(model, windows, params=p)) < float(multistep_loss(model, windows, params=b))
+            assert torch.equal(p["in_mean"], b["in_mean"])  # the meta model's normalization is kept
+    for m, b in zip(ens.members, before, strict=True):  # the meta parameters are untouched
+        assert all(torch.equal(x, y) for x, y in zip(meta_parameters(m.model).values(True, True),
+                                                     b.values(True, True), strict=True))
+    again = ens.fine_tuned(user, updates=60, seed=3)  # deterministic given the seed
+    assert all(torch.equal(x, y) for x, y in zip(params[0].values(True, True), again[0].values(True, True),
+                                                 strict=True))
+    with pytest.raises(ValueError, match="updates >= 1"):
+        ens.fine_tuned(user, updates=0)
+
+
+def test_calibration_drives_are_user_data_held_out_of_the_round_loss_and_round_trip(tmp_path):
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(12), tau=True)
+    buffers.add(0, _trajectory(10, seed=1), calibration=True)
+    buffers.add(0, _trajectory(9, seed=2))  # a rollout: the only held-out data
+    assert [len(t) for t in buffers.user_trajectories(0)] == [12, 10]
+    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3), size=1).members[0]
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    with torch.no_grad():
+        expected = float(multistep_loss(trainer.model, trajectory_windows(buffers.data(0)[22:], 3, 3)))
+    assert abs(trainer.round_loss(0, adapted=False) - expected) < 1e-6
+    buffers.save(tmp_path / "b")
+    loaded = RoundBuffers.load(tmp_path / "b")
+    assert [len(t) for t in loaded.user_trajectories(0)] == [12, 10]
+    assert torch.equal(loaded.user_trajectories(0)[1]["observation"], buffers.user_trajectories(0)[1]["observation"])

@@ -144,6 +144,8 @@ def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, cap
     assert "entry 0" in err and "'camera'" in err and len(err.strip().splitlines()) == 1
     assert main(["study", "--preset", "tiny", "--out", str(out)]) == 2
     assert "unknown preset 'tiny'" in capsys.readouterr().err
+    assert main(["study", "--preset", "smoke", "--out", str(out), "--calibration", "-1"]) == 2
+    assert "calibration and train.personal_updates must be >= 0" in capsys.readouterr().err
     assert main(["study", "--preset", "smoke", "--out", str(out)]) == 2  # a study is there: needs --resume
     assert "already holds a study" in capsys.readouterr().err
     assert main(["study", "--preset", "smoke", "--out", str(out), "--resume"]) == 2  # ... and it is another one

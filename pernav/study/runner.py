@@ -2,7 +2,9 @@
 
 Per town: the offline entries are driven by the explore policy into every learner's data stream; the
 learners (``sysid``, ``adapt``: 7 actions, ``adapt_speed``: 21) are warm-started by maximum likelihood
-(Eq. 1). Then, per online entry ``t``: one explore trajectory ``tau_t``; adapt ``U(P_t, tau_t)``; evaluate
+(Eq. 1). Then, per online entry ``t``: one explore trajectory ``tau_t`` (and ``calibration`` re-timed drives of
+the round's user, if configured); adapt ``U(P_t, tau_t)`` (or, with ``train.personal_updates``, that many
+maximum-likelihood updates from ``P_t`` on the user's drives); evaluate
 every method on the evaluation routes with that round's user (same episode seeds for every method);
 ``rollouts`` trajectories per learner, each by its MPC policy with probability 1/2 and by explore otherwise,
 into the learner's own ``D_t``; then FTML meta updates (``adapt``, ``adapt_speed``) or plain updates on all
@@ -45,7 +47,7 @@ from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
 from pernav.trainer.ensemble import EnsembleTrainer
 
-__all__ = ["CheckpointError", "run_town"]
+__all__ = ["CheckpointError", "final_models", "run_town"]
 
 log = logging.getLogger("pernav.study")
 
@@ -65,16 +67,19 @@ class Learner:
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(self.model)), cfg.planner, self.n_actions)
         self.meta = name != "sysid"
 
-    def adapted(self, tau: Any, cfg: StudyConfig) -> Any:
-        """The parameters the planner uses this round: every member's, adapted on ``tau`` for meta learners;
-        ``None`` (the model's own) for a single sysid model."""
+    def adapted(self, round_: int, cfg: StudyConfig, seed: int = 0) -> Any:
+        """The parameters the planner uses in round ``round_``: every member's, adapted to the round's user for
+        meta learners (``U`` on tau, or ``personal_updates`` updates on the user's drives); ``None`` (the
+        model's own) for a single sysid model."""
         if not self.meta and cfg.train.ensemble == 1:
             return None
-        return self.trainer.parameters(tau, adapted=self.meta, alpha=cfg.train.alpha)
+        if self.meta and cfg.train.personal_updates:
+            return self.trainer.fine_tuned(self.buffers.user_trajectories(round_), cfg.train.personal_updates, seed)
+        return self.trainer.parameters(self.buffers.tau(round_), adapted=self.meta, alpha=cfg.train.alpha)
 
-    def add(self, round_: int, trajectory: Any, tau: bool = False) -> None:
+    def add(self, round_: int, trajectory: Any, tau: bool = False, calibration: bool = False) -> None:
         data = to_speed_actions(trajectory) if self.n_actions == 21 else trajectory
-        self.buffers.add(round_, data, tau=tau)
+        self.buffers.add(round_, data, tau=tau, calibration=calibration)
 
     def state(self) -> dict[str, Any]:
         return self.trainer.state_dict()
@@ -174,6 +179,22 @@ def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: d
             shutil.rmtree(old, ignore_errors=True)
 
 
+def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[DynamicsModel, list[dict]]:
+    """A finished study's last checkpointed ensemble of ``learner`` in ``town``: a module of its
+    architecture and every member's state dict (load one with ``model.load_state_dict``).
+
+    >>> model, members = final_models("runs/default", "Town1")  # doctest: +SKIP
+    """
+    manifest = Path(study) / "checkpoints" / town / "manifest.json"
+    if not manifest.is_file():
+        raise CheckpointError(f"no {town} checkpoint in {str(study)!r} (run the study first)")
+    data = torch.load(manifest.parent / json.loads(manifest.read_text())["folder"] / "state.pt", weights_only=False)
+    if learner not in data["learners"]:
+        raise CheckpointError(f"learner {learner!r} not in the checkpoint; it has {', '.join(data['learners'])}")
+    members = data["learners"][learner]["members"]
+    return DynamicsModel(**members[0]["model_config"]), [m["model"] for m in members]
+
+
 def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any] | None:
     """Restore learners from the manifest's checkpoint; ``None`` when there is none. Verifies checksums."""
     manifest_path = folder / "manifest.json"
@@ -255,8 +276,10 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                               explore_module())
             for learner in learners.values():
                 learner.add(index, tau, tau=True)
+            _calibrate(cfg, town, entry, index, learners, profile)
             with _Timer(profile, "adaptation_s"):
-                adapted = {name: learner.adapted(learner.buffers.tau(index), cfg) for name, learner in learners.items()}
+                adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
+                           for name, learner in learners.items()}
             jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                                *_policy_spec(method, learners, adapted))
                     for method in methods if method != "hindsight" for route in routes]
@@ -283,7 +306,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
-                state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=True)
+                personal = adapted["adapt"] if cfg.train.personal_updates else None  # else U on tau, as planned
+                state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, True, personal)
                 state["unadapted_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=False)
             with _Timer(profile, "training_s"):
                 for learner in learners.values():
@@ -306,6 +330,20 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,
             "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
             "profile": {k: round(v, 2) for k, v in state["profile"].items()}}
+
+
+def _calibrate(cfg: StudyConfig, town: str, entry: Entry, index: int, learners: dict[str, Learner],
+               profile: dict[str, float]) -> None:
+    """``cfg.calibration`` drives of the round's user with explore's prompts re-timed at random, before the
+    evaluation, into every learner's round data as calibration drives: data that show how *this* user
+    answers a prompt's timing, for ``personal_updates`` (an explore tau shows none)."""
+    rng = random.Random(derive_seed(cfg.seed, town, entry.label, "calibration"))  # its own stream: the
+    with _Timer(profile, "collection_s"):  # round's other draws stay as without calibration
+        for k in range(cfg.calibration):
+            seed = derive_seed(cfg.seed, town, entry.label, "calibration", k)
+            traj = episode(cfg, town, entry, rng.randrange(10), seed, RetimedExplore(seed=seed))
+            for learner in learners.values():
+                learner.add(index, traj, calibration=True)
 
 
 def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
@@ -336,7 +374,8 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     with _Timer(state["profile"], "hindsight_training_s"):
         hind.trainer.train(cfg.train.updates * len(online), meta=True)
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
-    params = {index: hind.adapted(hind.buffers.tau(index), cfg) for index, _ in online}
+    params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
+              for index, entry in online}
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                        "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online for route in routes]
@@ -346,7 +385,8 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     for index, entry in online:
         out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
                                                       if j.entry.label == entry.label])
-        out["losses"][entry.label] = hind.trainer.round_loss(index, adapted=True)
+        out["losses"][entry.label] = hind.trainer.round_loss(index, True, params[index] if cfg.train.personal_updates
+                                                             else None)
     return out
 
 

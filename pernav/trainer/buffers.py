@@ -3,7 +3,8 @@
 Each round's buffer stores the round's transitions with ``"round"`` and ``"traj"`` metadata (a globally
 unique trajectory id) and samples contiguous ``[L]`` windows with a ``SliceSampler`` keyed on ``"traj"``,
 so a window never crosses the end of a trajectory. The round's adaptation trajectory ``tau_t`` is kept
-apart (:meth:`RoundBuffers.tau`). Everything saves to and loads from a folder.
+apart (:meth:`RoundBuffers.tau`), and so are the round's user's calibration drives, if any
+(:meth:`RoundBuffers.user_trajectories`: tau and those). Everything saves to and loads from a folder.
 
 Example:
     >>> import torch
@@ -48,6 +49,7 @@ class RoundBuffers:
         self.L, self.capacity = int(L), int(capacity)
         self.buffers: dict[int, TensorDictReplayBuffer] = {}
         self.taus: dict[int, TensorDictBase] = {}
+        self.calibration: dict[int, list[TensorDictBase]] = {}
         self.n_traj = 0
         self.generator = torch.Generator().manual_seed(seed)
 
@@ -60,10 +62,11 @@ class RoundBuffers:
         """Rounds that hold data, in order."""
         return sorted(self.buffers)
 
-    def add(self, round_: int, trajectory: TensorDictBase, tau: bool = False) -> None:
+    def add(self, round_: int, trajectory: TensorDictBase, tau: bool = False, calibration: bool = False) -> None:
         """Store a ``[T]`` trajectory (from a ``HistoryWindow`` env) in round ``round_``'s buffer.
 
-        With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``.
+        With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``; with ``calibration=True``
+        one of the round's user's calibration drives (:meth:`user_trajectories`).
         """
         if trajectory.ndim != 1 or trajectory.shape[0] == 0:
             raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
@@ -76,12 +79,27 @@ class RoundBuffers:
         self.buffers.setdefault(round_, self._new_buffer()).extend(data)
         if tau:
             self.taus[round_] = data
+        if calibration:
+            self.calibration.setdefault(round_, []).append(data)
 
     def tau(self, round_: int) -> TensorDictBase:
         """The adaptation trajectory of a round."""
         if round_ not in self.taus:
             raise KeyError(f"round {round_} has no adaptation trajectory; rounds with one: {sorted(self.taus)}")
         return self.taus[round_]
+
+    def user_trajectories(self, round_: int) -> list[TensorDictBase]:
+        """What a round's user drove before the round's evaluation: ``tau_t``, then the calibration drives."""
+        return [self.tau(round_), *self.calibration.get(round_, [])]
+
+    @classmethod
+    def of(cls, trajectories: list[TensorDictBase], L: int = 5, seed: int = 0, per_round: int = 8) -> RoundBuffers:
+        """Buffers holding ``trajectories`` (``per_round`` to a round: a round's storage is allocated whole),
+        the first one as round 0's tau: the data of a model trained on these trajectories alone."""
+        out = cls(L=L, seed=seed)
+        for k, t in enumerate(trajectories):
+            out.add(k // per_round, t, tau=(k == 0))
+        return out
 
     def data(self, round_: int) -> TensorDictBase:
         """All transitions of a round, ``[N]``."""
@@ -109,8 +127,12 @@ class RoundBuffers:
             self.buffers[r].dumps(folder / f"round_{r}")
         for r, tau in self.taus.items():
             tau.memmap(folder / f"tau_{r}")
+        for r, drives in self.calibration.items():
+            for k, drive in enumerate(drives):
+                drive.memmap(folder / f"calibration_{r}_{k}")
         meta = {"L": self.L, "capacity": self.capacity, "n_traj": self.n_traj, "rounds": self.rounds,
-                "taus": sorted(self.taus), "generator": self.generator.get_state().tolist()}
+                "taus": sorted(self.taus), "calibration": {str(r): len(v) for r, v in self.calibration.items()},
+                "generator": self.generator.get_state().tolist()}
         (folder / "manifest.json").write_text(json.dumps(meta))
 
     @classmethod
@@ -130,4 +152,7 @@ class RoundBuffers:
             out.buffers[int(r)] = buffer
         for r in meta["taus"]:
             out.taus[int(r)] = TensorDict.load_memmap(folder / f"tau_{r}").clone()
+        for r, n in meta.get("calibration", {}).items():  # absent in checkpoints written before calibration
+            out.calibration[int(r)] = [TensorDict.load_memmap(folder / f"calibration_{r}_{k}").clone()
+                                       for k in range(n)]
         return out

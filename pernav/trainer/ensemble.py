@@ -62,6 +62,17 @@ class EnsembleTrainer:
             self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i))
         self.config = config
 
+    @classmethod
+    def from_states(cls, config: dict[str, Any], states: list[dict[str, Any]], train: TrainConfig,
+                    buffers: RoundBuffers | None = None, seed: int = 0) -> EnsembleTrainer:
+        """An ensemble of ``DynamicsModel(**config)`` members starting from ``states`` (their state dicts,
+        normalization included), e.g. a finished study's (:func:`pernav.study.runner.final_models`)."""
+        out = cls(lambda: DynamicsModel(**config), buffers if buffers is not None else RoundBuffers(L=train.L),
+                  train, size=len(states), seed=seed)
+        for member, state in zip(out.members, states, strict=True):
+            member.model.load_state_dict(state)
+        return out
+
     @property
     def model(self) -> DynamicsModel:
         return self.members[0].model
@@ -126,9 +137,23 @@ class EnsembleTrainer:
                 out.append(meta_parameters(m.model).detach().clone())
         return out
 
-    def round_loss(self, round_: int, adapted: bool) -> float:
-        """The members' mean held-out L-step loss on a round (:meth:`FTMLTrainer.round_loss`)."""
-        return float(sum(m.round_loss(round_, adapted) for m in self.members) / len(self.members))
+    def fine_tuned(self, trajectories: list[TensorDictBase], updates: int, seed: int = 0) -> list[TensorDictBase]:
+        """Every member's parameters (detached) after ``updates`` plain maximum-likelihood updates on
+        ``trajectories`` alone, starting from the current (meta) parameters with a fresh Adam; the ensemble
+        itself is unchanged. The many-step, many-trajectory alternative to ``U`` (``personal_updates``)."""
+        if updates < 1 or not trajectories:
+            raise ValueError(f"fine-tuning needs updates >= 1 and trajectories; got {updates} and {len(trajectories)}")
+        twin = EnsembleTrainer.from_states(self.model.config(), [m.model.state_dict() for m in self.members],
+                                           self.config, RoundBuffers.of(trajectories, self.config.L, seed), seed)
+        twin.train(updates, meta=False)
+        return [meta_parameters(m.model).detach().clone() for m in twin.members]
+
+    def round_loss(self, round_: int, adapted: bool, params: list[TensorDictBase] | None = None) -> float:
+        """The members' mean held-out L-step loss on a round (:meth:`FTMLTrainer.round_loss`); ``params``:
+        every member's adapted parameters (e.g. from :meth:`fine_tuned`) instead of ``U`` on tau."""
+        params = params if params is not None else [None] * len(self.members)
+        return float(sum(m.round_loss(round_, adapted, p) for m, p in zip(self.members, params, strict=True))
+                     / len(self.members))
 
     def state_dict(self) -> dict[str, Any]:
         return {"members": [m.state_dict() for m in self.members]}

@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import torch
+from tensordict import TensorDictBase
 
 from pernav.model.adapt import adapt, trajectory_windows
 from pernav.model.dynamics import DynamicsModel
@@ -61,6 +62,9 @@ class TrainConfig:
     hidden: list[int] = field(default_factory=lambda: [256, 256, 256])
     K: int = 5  # history window (steps) the model reads
     ensemble: int = 1  # dynamics models trained side by side (the planner's uncertainty)
+    # 0: adapt with U, one gradient step on tau (the paper). n > 0: adapt by n maximum-likelihood updates (fresh
+    # Adam, lr) from the meta parameters on the round user's own drives, tau and calibration (EnsembleTrainer.fine_tuned)
+    personal_updates: int = 0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -157,19 +161,22 @@ class FTMLTrainer:
 
     # ----- evaluation -----------------------------------------------------------------------------
     @torch.no_grad()
-    def round_loss(self, round_: int, adapted: bool) -> float:
+    def round_loss(self, round_: int, adapted: bool, params: TensorDictBase | None = None) -> float:
         """Held-out L-step loss on a round (for regret curves and the adaptation check), with or without
-        adapting on its ``tau`` first: every transition of the round's *other* trajectories predicted once
-        (windows tiling each trajectory; no sampling, so the figure is exact). A round that holds only its
-        ``tau`` is scored on ``tau`` itself (then it is not held out)."""
-        params = None
+        adapting on its ``tau`` first (or with given adapted ``params``): every transition of the round's
+        trajectories other than its user's drives (tau, calibration) predicted once (windows tiling each
+        trajectory; no sampling, so the figure is exact). A round that holds only its ``tau`` is scored on
+        ``tau`` itself (then it is not held out)."""
         tau = self.buffers.tau(round_)
-        if adapted:
+        if adapted and params is None:
             with torch.enable_grad():
                 params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True)
             params = params.detach()
+        elif not adapted:
+            params = None
         data = self.buffers.data(round_)
-        held_out = data[data["traj"] != tau["traj"][0]]
+        user = torch.tensor([int(t["traj"][0]) for t in self.buffers.user_trajectories(round_)])
+        held_out = data[~torch.isin(data["traj"], user)]
         source = held_out if held_out.shape[0] else tau
         windows = [trajectory_windows(source[source["traj"] == t], self.config.L, self.config.L)
                    for t in torch.unique(source["traj"]).tolist()]
