@@ -4,6 +4,7 @@ Learner results are bitwise reproducible on one machine but only statistically a
 closed loop amplifies floating-point differences), so a claim about a learner should rest on pooled seeds.
 
 Run: .venv/bin/python recipes/pool_seeds.py runs/seed0 runs/seed1 runs/seed2 [--json pooled.json]
+(a study folder or its results.json, e.g. a copy kept under docs/figures/)
 """
 
 from __future__ import annotations
@@ -19,12 +20,12 @@ from pernav.study.report import comparison_table
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("studies", nargs="+", help="study output folders (with results.json)")
+    ap.add_argument("studies", nargs="+", help="study output folders (with results.json), or results.json files")
     ap.add_argument("--json", help="write the pooled comparison here")
     args = ap.parse_args()
     iterations = []
     for folder in args.studies:
-        path = Path(folder) / "results.json"
+        path = Path(folder) if Path(folder).is_file() else Path(folder) / "results.json"
         if not path.is_file():
             print(f"error: {path} does not exist (run the study first)", file=sys.stderr)
             sys.exit(2)
