@@ -17,6 +17,7 @@ import json
 import sys
 from pathlib import Path
 
+from pernav.planner.factory import parse_planner_options
 from pernav.study.config import COLLECT, METHODS
 from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
@@ -121,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--planner", choices=["retime", "paper"],
                    help="the learners' planner: retime (default: long horizon, re-timed explore prompts) or paper "
                         "(horizon-5 masked tree)")
+    p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the planner's options (pernav.planner.factory.PLANNER_DEFAULTS; VALUE in JSON, e.g. "
+                        "max_spread=null); repeatable")
     p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: all six)")
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
@@ -154,6 +158,10 @@ def _study(args: argparse.Namespace) -> None:
         cfg.seed = args.seed
     if args.planner is not None:
         cfg.planner = {"kind": args.planner}
+    try:
+        cfg.planner = {**cfg.planner, **parse_planner_options(cfg.planner.get("kind", "retime"), args.planner_option)}
+    except ValueError as exc:
+        raise UsageError(f"--planner-option {exc}") from None
     if args.methods is not None:
         cfg.methods = [m for m in METHODS if m in args.methods]
     if args.collect is not None:

@@ -17,6 +17,11 @@ as (driver, town) jobs finish; ``--resume`` keeps finished jobs.
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/driver_data.py [--sizes 4 16 64] [--routes 5]
 [--updates 600] [--workers 2] [--drivers LABEL ...] [--json docs/figures/driver_data/driver_data.json] [--resume]
 [--init STUDY]  (fine-tune the study's final adapt ensemble on the driver's data instead: size 0 is that ensemble)
+[--planner-option KEY=VALUE ...] (the planner's gate, e.g. max_spread=null) [--bootstrap] (each member fits its own
+bootstrap resample of the driver's data, :meth:`EnsembleTrainer.fine_tuned`) [--tag NAME] (appended to the method)
+
+The gate probe of docs/planning.md ("Which gate?"): a finished calibration study's ensemble, 4 own drives, 100
+updates, per gate: ``--init runs/hr0 --sizes 4 --updates 100 --routes 5 [--planner-option max_spread=null] [--bootstrap]``.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ from tqdm import tqdm
 from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode
 from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import STATE_DIM, DynamicsModel
-from pernav.planner.factory import env_planning_config
+from pernav.planner.factory import env_planning_config, parse_planner_options
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.runner import final_models
 from pernav.trainer.buffers import RoundBuffers
@@ -59,13 +64,13 @@ def driver_trajectories(driver: str, town: str, n: int, seed: int) -> list:
     return out
 
 
-def own_ensemble(trajectories: list, updates: int, seed: int,
-                 init: list[dict] | None = None) -> tuple[dict[str, Any], list]:
+def own_ensemble(trajectories: list, updates: int, seed: int, init: list[dict] | None = None,
+                 bootstrap: bool = False) -> tuple[dict[str, Any], list]:
     """An ensemble trained (plain maximum likelihood) on ``trajectories`` only: (model spec, member params).
 
     ``init``: the members' starting state dicts (a study's meta model, normalization included) instead of a
     random initialization with normalization fitted on the data (:meth:`EnsembleTrainer.fine_tuned`; no
-    trajectories: that ensemble unchanged)."""
+    trajectories: that ensemble unchanged); ``bootstrap``: each member fine-tunes on its own resample."""
     config = {"state_dim": STATE_DIM, "n_actions": 7, "K": TRAIN.K, "hidden": TRAIN.hidden}
     if init is None:
         trainer = EnsembleTrainer(lambda: DynamicsModel(**config), RoundBuffers.of(trajectories, TRAIN.L, seed),
@@ -75,14 +80,14 @@ def own_ensemble(trajectories: list, updates: int, seed: int,
         params = [meta_parameters(m.model).detach().clone() for m in trainer.members]
     else:
         trainer = EnsembleTrainer.from_states(config, init, TRAIN, seed=seed)
-        params = (trainer.fine_tuned(trajectories, updates, seed) if trajectories
+        params = (trainer.fine_tuned(trajectories, updates, seed, bootstrap=bootstrap) if trajectories
                   else [meta_parameters(m.model).detach().clone() for m in trainer.members])
     model = trainer.model
     return {"config": model.config(), "state": {k: v.clone() for k, v in model.state_dict().items()}}, params
 
 
 def run_job(driver: str, town: str, sizes: list[int], routes: int, updates: int, seed: int,
-            study: str | None = None) -> list[dict]:
+            study: str | None = None, planner: dict | None = None, bootstrap: bool = False, tag: str = "") -> list[dict]:
     """Every episode of one (driver, town): explore, oracle and the planner on each size's own ensemble
     (fine-tuned from ``study``'s final adapt ensemble when given; size 0: that ensemble unchanged)."""
     torch.set_num_threads(1)
@@ -94,10 +99,11 @@ def run_job(driver: str, town: str, sizes: list[int], routes: int, updates: int,
     episodes = [drive_panel_episode(PanelJob(driver, town, r, 1000 + r, m)) for r in range(routes)
                 for m in ("explore", "oracle")]
     for n in sizes:
-        spec, params = own_ensemble(data[:n], updates, derive_seed(seed, driver, town, "init"), init)
+        spec, params = own_ensemble(data[:n], updates, derive_seed(seed, driver, town, "init"), init, bootstrap)
         for r in range(routes):
-            e = drive_panel_episode(PanelJob(driver, town, r, 1000 + r, "retime@learned", model=spec, params=params))
-            e.update(method=f"retime@{label}{n}", trajectories=n,
+            e = drive_panel_episode(PanelJob(driver, town, r, 1000 + r, "retime@learned", planner=planner or {},
+                                             model=spec, params=params))
+            e.update(method=f"retime@{label}{n}{tag}", trajectories=n,
                      transitions=sum(int(t.shape[0]) for t in data[:n]))
             episodes.append(e)
     for e in episodes:
@@ -118,7 +124,15 @@ def main() -> None:
     ap.add_argument("--resume", action="store_true", help="keep the (driver, town) jobs already in --json")
     ap.add_argument("--init", default=None, metavar="STUDY",
                     help="fine-tune a finished study's final adapt ensemble instead of training from scratch")
+    ap.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a retime planner option (JSON value, e.g. max_spread=null); repeatable")
+    ap.add_argument("--bootstrap", action="store_true", help="each member fine-tunes on its own bootstrap resample")
+    ap.add_argument("--tag", default="", help="appended to the planner's method name (tell variants apart)")
     args = ap.parse_args()
+    try:
+        planner = parse_planner_options("retime", args.planner_option)
+    except ValueError as exc:
+        ap.error(f"--planner-option {exc}")
     if args.init and not all((Path(args.init) / "checkpoints" / t / "manifest.json").is_file() for t in args.towns):
         ap.error(f"--init {args.init}: no checkpoint for every town of {args.towns} (run the study first)")
     unknown = [d for d in args.drivers if d not in PANEL]
@@ -132,11 +146,13 @@ def main() -> None:
     jobs = [(d, t) for d in args.drivers for t in args.towns if (d, t) not in done]
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     with ProcessPoolExecutor(args.workers) as pool:
-        futures = [pool.submit(run_job, d, t, args.sizes, args.routes, args.updates, args.seed, args.init) for d, t in jobs]
+        futures = [pool.submit(run_job, d, t, args.sizes, args.routes, args.updates, args.seed, args.init, planner,
+                               args.bootstrap, args.tag) for d, t in jobs]
         for f in tqdm(as_completed(futures), total=len(futures), desc="driver x town"):
             episodes.extend(f.result())
             Path(args.json).write_text(json.dumps({
                 "sizes": args.sizes, "updates": args.updates, "seed": args.seed, "init": args.init,
+                "planner": planner, "bootstrap": args.bootstrap,
                 "drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, indent=1))
     print(comparison_table(episodes))
     for town in args.towns:

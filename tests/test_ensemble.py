@@ -132,6 +132,32 @@ def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_th
         ens.fine_tuned(user, updates=0)
 
 
+def test_weighted_loss_is_the_weighted_mean_over_windows_and_bootstrap_members_fit_their_resample():
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    torch.manual_seed(0)
+    model = DynamicsModel(hidden=(16,))
+    windows = trajectory_windows(_trajectory(30), 3, 3)
+    with torch.no_grad():
+        each = torch.stack([multistep_loss(model, windows[i:i + 1]) for i in range(windows.shape[0])])
+        w = torch.rand(windows.shape[0])
+        torch.testing.assert_close(multistep_loss(model, windows, weights=torch.ones_like(w)), each.mean())
+        torch.testing.assert_close(multistep_loss(model, windows, weights=w), (each * w).sum() / w.sum())
+    # bootstrap: each member fits a resample of the user's drives (by seed), so members differ from the plain fit
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(30), tau=True)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3), size=3, seed=1)
+    ens.fit_normalization()
+    user = [_trajectory(25, seed=s) for s in (7, 8, 9, 10)]
+    plain = ens.fine_tuned(user, updates=20, seed=3)
+    boot = ens.fine_tuned(user, updates=20, seed=3, bootstrap=True)
+    assert boot[0]["net", "0", "weight"].shape == plain[0]["net", "0", "weight"].shape
+    assert any(not torch.equal(b["net", "0", "weight"], p["net", "0", "weight"]) for b, p in zip(boot, plain, strict=True))
+    again = ens.fine_tuned(user, updates=20, seed=3, bootstrap=True)
+    assert all(torch.equal(a["net", "0", "weight"], b["net", "0", "weight"]) for a, b in zip(again, boot, strict=True))
+
+
 def test_calibration_drives_are_user_data_held_out_of_the_round_loss_and_round_trip(tmp_path):
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(12), tau=True)

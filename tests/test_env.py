@@ -95,6 +95,10 @@ def test_played_only_on_change_or_after_15_steps():
         (["drive", "--town", "Town1", "--policy", "explore", "--user", "user1", "--routes", "10"], "out of range"),
         (["drive", "--town", "Town1", "--policy", "explore", "--user", "user42"], "unknown user"),
         (["drive", "--town", "Town1", "--policy", "explore", "--user", "missing.yaml"], "does not exist"),
+        (["study", "--preset", "smoke", "--out", "runs/never", "--planner-option", "spread=1"], "max_spread"),
+        (["study", "--preset", "smoke", "--out", "runs/never", "--planner-option", "agree=high"], "VALUE must be"),
+        (["study", "--preset", "smoke", "--planner", "paper", "--out", "runs/never", "--planner-option",
+          "max_spread=null"], "paper planner's options: horizon"),
     ],
 )
 def test_cli_bad_input_one_line_exit_2(argv, message, capsys):

@@ -283,3 +283,15 @@ def test_retimed_explore_is_explore_at_p0_and_retimes_explore_prompts_otherwise(
     assert all(int(x) in said or bool(m[int(x)]) for x, m in zip(a["action"], masks, strict=True))
     with pytest.raises(ValueError, match="hold"):
         RetimedExplore(hold=0)
+
+
+def test_planner_options_parse_json_values_and_name_the_allowed_keys():
+    from pernav.planner.factory import build_planner, parse_planner_options
+
+    opts = parse_planner_options("retime", ["max_spread=null", "agree=0.67", "horizon=10"])
+    assert opts == {"max_spread": None, "agree": 0.67, "horizon": 10}
+    planner = build_planner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,)))), {"kind": "retime", **opts})
+    assert planner.max_spread is None and planner.agree == 0.67 and planner.horizon == 10
+    for bad, match in (("max_spread", "KEY=VALUE"), ("beam=3", "options: horizon"), ("margin=big", "a number")):
+        with pytest.raises(ValueError, match=match):
+            parse_planner_options("retime", [bad])

@@ -26,12 +26,11 @@ from pernav.diagnostics.true_model import TrueDynamicsEnv
 from pernav.env.torchrl_env import explore_module, oracle_module
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.trainer.collect import episode_metrics, history_env
-from pernav.world.drivers import Context, Population
+from pernav.world.drivers import Context, population_samples
 
 __all__ = ["PANEL", "PanelJob", "comparison_table", "drive_panel_episode", "episode_key"]
 
-_POP = Population(seed=2022)  # population prior samples of the panel (seed fixed before any run)
-_SAMPLES = [_POP.sample() for _ in range(2)]
+_SAMPLES = population_samples(2)  # population prior samples (seed fixed before any run; the default study's too)
 
 #: label -> (user, context): 2 users the oracle beats explore for by > 20 % (docs/simulator.md), a fast
 #: keyboard driver, and 2 population samples.

@@ -38,9 +38,11 @@ def using(model: torch.nn.Module, params: TensorDictBase | None):
     return nullcontext() if params is None else params.to_module(model)
 
 
-def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorDictBase | None = None) -> torch.Tensor:
+def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorDictBase | None = None,
+                  weights: torch.Tensor | None = None) -> torch.Tensor:
     """The L-step loss of ``model`` (a scalar), or with ``ensemble`` (stacked member parameters, batch
-    ``[E]``) every member's at once (``[E]``): the same batch, each member rolling out its own predictions."""
+    ``[E]``) every member's at once (``[E]``): the same batch, each member rolling out its own predictions.
+    ``weights`` (``[B]``, or ``[E, B]`` per member) weigh the windows (a weighted mean over the batch)."""
     history = batch["history"][:, 0]
     actions = batch["action"]
     states = batch["observation"]
@@ -61,7 +63,11 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
         pred = model.normalized_delta(window) if ensemble is None else model.ensemble_normalized_delta(window, ensemble)
         # the true difference, in the frame of the true previous state (Eq. 4: compare differences)
         target = (ego_delta(states[:, step], next_states[:, step]) - mean) / std
-        loss = loss + ((pred - target) ** 2).sum(-1).mean(-1)
+        err = ((pred - target) ** 2).sum(-1)  # [B] or [E, B]
+        if weights is None:
+            loss = loss + err.mean(-1)
+        else:  # a member whose windows all weigh 0 gets loss 0 (no gradient) from this batch
+            loss = loss + (err * weights).sum(-1) / weights.sum(-1).clamp_min(1e-12)
         if step + 1 < steps:
             current = history[..., -1, :S]
             predicted = apply_delta(current, pred * std + mean)
@@ -69,19 +75,21 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
     return loss / steps
 
 
-def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:
+def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None,
+                   weights: torch.Tensor | None = None) -> torch.Tensor:
     """The L-step loss (Eq. 4): roll the model forward autoregressively from the true window at the
     start of each ``[L]`` slice with the true actions, and compare predicted and true state differences
     (normalized egocentric differences, squared error, averaged over steps and batch).
 
     ``params`` with a batch dimension (an ensemble's stacked parameters, ``[E]``) gives every member's loss,
-    ``[E]``, in one batched pass (equal to each member's own loss)."""
+    ``[E]``, in one batched pass (equal to each member's own loss). ``weights`` (``[B]``, or ``[E, B]`` with an
+    ensemble) make it a weighted mean over the windows (bootstrap resampling, :meth:`EnsembleTrainer.fine_tuned`)."""
     if batch.ndim != 2:
         raise ValueError(f"multistep_loss expects a [B, L] batch, got batch_size {tuple(batch.shape)}")
     if params is not None and params.batch_dims > 0:
-        return _rollout_loss(model, batch, ensemble=params)
+        return _rollout_loss(model, batch, ensemble=params, weights=weights)
     with using(model, params):
-        return _rollout_loss(model, batch)
+        return _rollout_loss(model, batch, weights=weights)
 
 
 def single_step_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:

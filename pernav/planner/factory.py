@@ -10,13 +10,14 @@ Example:
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
 from typing import Any
 
 from pernav.planner.retiming import RetimingPlanner
 from pernav.planner.tree_search import TreeSearchPlanner
 
-__all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_config"]
+__all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_config", "parse_planner_options"]
 
 #: The options each planner kind takes, with their defaults (``kind`` selects one).
 PLANNER_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -58,3 +59,28 @@ def env_planning_config(options: Mapping[str, Any]) -> dict[str, int]:
     if kind == "paper":
         return {"plan_horizon": int(opts["horizon"]), "plan_shift": int(opts["shift"])}
     return {"plan_horizon": 5, "plan_shift": 2, "future_steps": int(opts["horizon"]) + int(opts["advance"])}
+
+
+def parse_planner_options(kind: str, pairs: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` strings (JSON values: numbers, true/false, null) as options of the planner ``kind``;
+    ``ValueError`` naming the bad pair and what is allowed.
+
+    >>> parse_planner_options("retime", ["max_spread=null", "agree=0.67"])
+    {'max_spread': None, 'agree': 0.67}
+    """
+    if kind not in PLANNER_DEFAULTS:
+        raise ValueError(f"unknown planner kind {kind!r}; choose one of {', '.join(PLANNER_KINDS)}")
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, sep, raw = pair.partition("=")
+        if not sep or key not in PLANNER_DEFAULTS[kind]:
+            raise ValueError(f"{pair!r}: need KEY=VALUE with KEY one of the {kind} planner's options: "
+                             f"{', '.join(PLANNER_DEFAULTS[kind])}")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        if value is not None and (isinstance(value, str) or not isinstance(value, (int, float))):
+            raise ValueError(f"{pair!r}: VALUE must be a number, true/false or null")
+        out[key] = value
+    return out

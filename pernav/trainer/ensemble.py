@@ -61,6 +61,9 @@ class EnsembleTrainer:
                 model = make_model()
             self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i))
         self.config = config
+        # [E, trajectories]: each member's weight of each trajectory of ``buffers`` (bootstrap counts, set by
+        # fine_tuned(..., bootstrap=True)); None: every window weighs the same for every member
+        self.trajectory_weights: torch.Tensor | None = None
 
     @classmethod
     def from_states(cls, config: dict[str, Any], states: list[dict[str, Any]], train: TrainConfig,
@@ -116,7 +119,8 @@ class EnsembleTrainer:
         for r, n, batch in batches:
             used = (adapt(model, self.buffers.tau(r), alpha=cfg.alpha, L=cfg.L, first_order=cfg.first_order,
                           params=params) if meta else params)
-            total = total + multistep_loss(model, batch, params=used) * (n / cfg.batch)
+            weights = None if self.trajectory_weights is None else self.trajectory_weights[:, batch["traj"][:, 0]]
+            total = total + multistep_loss(model, batch, params=used, weights=weights) * (n / cfg.batch)
         values = total.detach()
         for m in self.members:
             m.optimizer.zero_grad(set_to_none=True)
@@ -137,14 +141,24 @@ class EnsembleTrainer:
                 out.append(meta_parameters(m.model).detach().clone())
         return out
 
-    def fine_tuned(self, trajectories: list[TensorDictBase], updates: int, seed: int = 0) -> list[TensorDictBase]:
+    def fine_tuned(self, trajectories: list[TensorDictBase], updates: int, seed: int = 0,
+                   bootstrap: bool = False) -> list[TensorDictBase]:
         """Every member's parameters (detached) after ``updates`` plain maximum-likelihood updates on
         ``trajectories`` alone, starting from the current (meta) parameters with a fresh Adam; the ensemble
-        itself is unchanged. The many-step, many-trajectory alternative to ``U`` (``personal_updates``)."""
+        itself is unchanged. The many-step, many-trajectory alternative to ``U`` (``personal_updates``).
+
+        ``bootstrap``: each member fits its own bootstrap resample of the trajectories (as weights: how often
+        the resample holds each), so the members disagree where a few drives of the driver do not pin the
+        model down, and the planner's agreement gate reads that as uncertainty (with every member on the same
+        data they agree by construction)."""
         if updates < 1 or not trajectories:
             raise ValueError(f"fine-tuning needs updates >= 1 and trajectories; got {updates} and {len(trajectories)}")
         twin = EnsembleTrainer.from_states(self.model.config(), [m.model.state_dict() for m in self.members],
                                            self.config, RoundBuffers.of(trajectories, self.config.L, seed), seed)
+        if bootstrap:
+            n, generator = len(trajectories), torch.Generator().manual_seed(seed)
+            draws = torch.randint(n, (len(self.members), n), generator=generator)
+            twin.trajectory_weights = torch.zeros(len(self.members), n).scatter_add_(1, draws, torch.ones(draws.shape))
         twin.train(updates, meta=False)
         return [meta_parameters(m.model).detach().clone() for m in twin.members]
 
