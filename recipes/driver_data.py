@@ -129,6 +129,8 @@ def main() -> None:
     ap.add_argument("--bootstrap", action="store_true", help="each member fine-tunes on its own bootstrap resample")
     ap.add_argument("--tag", default="", help="appended to the planner's method name (tell variants apart)")
     args = ap.parse_args()
+    if args.bootstrap and not args.init:
+        ap.error("--bootstrap resamples the drives a study's ensemble is fine-tuned on: it needs --init STUDY")
     try:
         planner = parse_planner_options("retime", args.planner_option)
     except ValueError as exc:
