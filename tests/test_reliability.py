@@ -136,3 +136,43 @@ def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplo
         members = torch.load(Path(tmp_path / "nan" / "checkpoints" / "Town1").glob("entry_*").__next__() / "state.pt",
                              weights_only=False)["learners"][name]["members"]
         assert members and all(torch.isfinite(v).all() for m in members for v in m["model"].values())
+
+
+def test_pool_workers_exit_when_the_study_process_is_killed(tmp_path):
+    # a killed `pernav study` must not leave its spawned workers computing (they outlived SIGTERM before)
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import os, sys, time\n"
+        "from pernav.study.parallel import PoolExecutor\n"
+        "if __name__ == '__main__':\n"
+        "    ex = PoolExecutor(2)\n"
+        "    pids = {f.result() for f in [ex.pool.submit(os.getpid) for _ in range(8)]}\n"
+        "    print(' '.join(map(str, pids)), flush=True)\n"
+        "    time.sleep(600)\n")
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    pids = [int(p) for p in parent.stdout.readline().split()]
+    assert pids and parent.pid not in pids
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        try:
+            with open(f"/proc/{pid}/stat") as f:  # a zombie waiting for init to reap it is gone too
+                return f.read().split(")")[-1].split()[0] != "Z"
+        except FileNotFoundError:
+            return False
+
+    deadline = time.time() + 20
+    while any(alive(p) for p in pids) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(p) for p in pids)

@@ -14,20 +14,36 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
+import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EpisodeJob", "PoolExecutor", "RayExecutor", "SerialExecutor", "make_executor", "run_episode_job"]
+__all__ = ["EpisodeJob", "PoolExecutor", "RayExecutor", "SerialExecutor", "init_worker", "make_executor",
+           "run_episode_job"]
 
 
-def _init_worker() -> None:
+def _exit_with(parent: int, poll_s: float) -> None:
+    while os.getppid() == parent:
+        time.sleep(poll_s)
+    os._exit(1)  # the parent is gone (killed): nobody will read this worker's results
+
+
+def _one_thread() -> None:
     import torch
 
     torch.set_num_threads(1)
     logging.getLogger("torchrl").setLevel(logging.WARNING)
+
+
+def init_worker(poll_s: float = 1.0) -> None:
+    """A pool worker's initializer: one torch thread, quiet torchrl, and exit within ``poll_s`` seconds once
+    the parent process is gone (a killed ``pernav study`` would otherwise leave its workers computing)."""
+    _one_thread()
+    threading.Thread(target=_exit_with, args=(os.getppid(), poll_s), daemon=True).start()
 
 
 def _bar(items: Iterable[Any], desc: str | None, total: int | None = None) -> Iterable[Any]:
@@ -55,7 +71,7 @@ class PoolExecutor:
     def __init__(self, workers: int) -> None:
         self.workers = workers
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_init_worker)
+                                        initializer=init_worker)
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], desc: str | None = None) -> list[Any]:
         items = list(items)
@@ -84,7 +100,7 @@ class RayExecutor:
 
 
 def _call(fn: Callable[[Any], Any], item: Any) -> Any:
-    _init_worker()
+    _one_thread()  # a Ray task: Ray owns the worker's life
     return fn(item)
 
 

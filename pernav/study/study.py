@@ -21,7 +21,7 @@ from typing import Any
 
 from pernav.study.compare import compare
 from pernav.study.config import METHODS, StudyConfig
-from pernav.study.parallel import make_executor
+from pernav.study.parallel import init_worker, make_executor
 from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
 
@@ -85,7 +85,7 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
     elif workers > 1 and len(cfg.towns) >= workers:
         jobs = [(cfg, town, str(out), resume, i, "serial") for i, town in enumerate(cfg.towns)]
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker) as pool:
             towns = list(pool.map(_town_job, jobs))
     else:
         executor = make_executor(workers)
