@@ -30,7 +30,7 @@ from pernav.world.drivers import Context, population_samples
 
 __all__ = ["PANEL", "PanelJob", "comparison_table", "drive_panel_episode", "episode_key"]
 
-_SAMPLES = population_samples(2)  # population prior samples (seed fixed before any run; the default study's too)
+_SAMPLES = population_samples(2)  # population prior samples (seed fixed before any run)
 
 #: label -> (user, context): 2 users the oracle beats explore for by > 20 % (docs/simulator.md), a fast
 #: keyboard driver, and 2 population samples.

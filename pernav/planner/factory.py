@@ -79,8 +79,8 @@ def parse_planner_options(kind: str, pairs: list[str]) -> dict[str, Any]:
         try:
             value = json.loads(raw)
         except json.JSONDecodeError:
-            value = raw
-        if value is not None and (isinstance(value, str) or not isinstance(value, (int, float))):
+            value = raw  # not JSON: refused below, like a JSON string or list
+        if value is not None and not isinstance(value, (int, float)):
             raise ValueError(f"{pair!r}: VALUE must be a number, true/false or null")
         out[key] = value
     return out

@@ -277,14 +277,14 @@ class Population:
         return DriverProfile(**values), context
 
 
-#: the seed of the population samples every diagnostic panel and the default study share (fixed before any run)
+#: the seed of the diagnostics panel's population samples (fixed before any run)
 PANEL_POPULATION_SEED = 2022
 
 
 def population_samples(n: int, seed: int = PANEL_POPULATION_SEED) -> list[tuple[DriverProfile, Context]]:
     """The first ``n`` draws of ``Population(seed=seed)``: the population samples of the diagnostics panel
-    (:mod:`pernav.diagnostics.panel`) and of the default study's schedule, so no figure is tuned to the
-    named users alone.
+    (:mod:`pernav.diagnostics.panel`, and written out in ``recipes/configs/headroom.yaml``), so no figure is
+    tuned to the named users alone.
 
     >>> a, b = population_samples(2)
     >>> a == population_samples(1)[0] and a != b
