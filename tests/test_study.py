@@ -14,6 +14,7 @@ import pytest
 
 from pernav.cli import main
 from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
+from pernav.world.drivers import PANEL_POPULATION_SEED, population_samples
 
 METHOD_KEYS = {"tracking_cost", "collisions", "vehicle_collisions", "edge_strikes", "completion", "episodes"}
 SUMMARY_KEYS = {"tracking_cost_mean", "collisions_mean", "collisions_std", "completion_mean"}
@@ -130,6 +131,26 @@ def test_schedule_files_yaml_and_json(tmp_path):
     assert a == b and a[1].profile().reaction_time == 2.5
     with pytest.raises(ScheduleError, match="does not exist"):
         load_schedule(tmp_path / "missing.yaml")
+
+
+RECIPE_CONFIGS = Path(__file__).resolve().parents[1] / "recipes" / "configs"
+
+
+@pytest.mark.parametrize("name, offline_draws", [("headroom.yaml", 0), ("headroom_prior.yaml", 6),
+                                                 ("headroom_prior12.yaml", 12)])
+def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_draws):
+    """The schedule files written out for docs/planning.md parse, and their population drivers are exactly
+    the draws their comments name (so a change to the prior cannot silently change what the docs measured):
+    online, the panel's two; offline, the first draws of ``Population(seed=1)``."""
+    entries = load_schedule(RECIPE_CONFIGS / name)
+
+    def sampled(phase: str) -> list:
+        return [(e.profile(), e.context()) for e in entries if e.phase == phase and not isinstance(e.driver, str)]
+
+    assert sampled("online") == population_samples(2, seed=PANEL_POPULATION_SEED)
+    assert sampled("offline") == (population_samples(offline_draws, seed=1) if offline_draws else [])
+    online = [e.label for e in entries if e.phase == "online"]
+    assert online == [e.label for e in load_schedule(RECIPE_CONFIGS / "headroom.yaml") if e.phase == "online"]
 
 
 def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, capsys):
