@@ -148,7 +148,7 @@ def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_dra
         return [(e.profile(), e.context()) for e in entries if e.phase == phase and not isinstance(e.driver, str)]
 
     assert sampled("online") == population_samples(2, seed=PANEL_POPULATION_SEED)
-    assert sampled("offline") == (population_samples(offline_draws, seed=1) if offline_draws else [])
+    assert sampled("offline") == population_samples(offline_draws, seed=1)  # 0 draws: none
     online = [e.label for e in entries if e.phase == "online"]
     assert online == [e.label for e in load_schedule(RECIPE_CONFIGS / "headroom.yaml") if e.phase == "online"]
 
