@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict
 
 from pernav.model import DynamicsModel
-from pernav.model.adapt import meta_parameters
+from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.ensemble import EnsembleTrainer
@@ -175,3 +175,53 @@ def test_calibration_drives_are_user_data_held_out_of_the_round_loss_and_round_t
     loaded = RoundBuffers.load(tmp_path / "b")
     assert [len(t) for t in loaded.user_trajectories(0)] == [12, 10]
     assert torch.equal(loaded.user_trajectories(0)[1]["observation"], buffers.user_trajectories(0)[1]["observation"])
+
+
+def _diverging_ensemble(max_grad_norm: float | None) -> EnsembleTrainer:
+    """Two members; the second's weights scaled 3x so its L-step rollouts diverge (L-step loss ~1e4, adaptation
+    gradient in the thousands), as a member of a real study once did (seed 2, Town1: docs/reliability.md)."""
+    buffers = RoundBuffers(L=5, seed=0)
+    for r in (0, 1):
+        buffers.add(r, _trajectory(30, seed=2 * r), tau=True)
+        buffers.add(r, _trajectory(25, seed=2 * r + 1))
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers,
+                          TrainConfig(batch=12, L=5, rounds_per_update=2, max_grad_norm=max_grad_norm), size=2, seed=2)
+    ens.fit_normalization()
+    with torch.no_grad():
+        for p in ens.members[1].model.net.parameters():
+            p.mul_(3.0)
+    return ens
+
+
+def test_clipping_keeps_a_diverging_member_learning_instead_of_frozen():
+    frozen, clipped = _diverging_ensemble(None), _diverging_ensemble(100.0)
+    before = [p.clone() for p in frozen.members[1].model.parameters()]
+    frozen.train(5, meta=True)
+    clipped.train(5, meta=True)
+    # unclipped, U's step throws the adapted parameters so far that every meta loss overflows: all skipped
+    assert frozen.members[1].skipped == 5 and frozen.members[0].skipped == 0
+    assert all(torch.equal(a, b) for a, b in zip(before, frozen.members[1].model.parameters(), strict=True))
+    # clipped, every update applies (and is counted as clipped); the healthy member is untouched by the clip
+    assert clipped.skipped == 0 and clipped.members[1].clipped == 5 and clipped.members[0].clipped == 0
+    assert not all(torch.equal(a, b) for a, b in zip(before, clipped.members[1].model.parameters(), strict=True))
+    for a, b in zip(frozen.members[0].model.parameters(), clipped.members[0].model.parameters(), strict=True):
+        assert torch.equal(a, b)
+
+
+def test_adaptation_clip_bounds_the_step_per_member_and_is_exact_below_the_bound():
+    ens = _diverging_ensemble(None)
+    tau = ens.buffers.tau(0)
+    stacked = torch.stack([meta_parameters(m.model) for m in ens.members]).detach()
+    keys = [k for k, v in stacked.items(True, True) if k[0] == "net"]
+
+    def step(max_norm):
+        params = stacked.clone()
+        for k in keys:  # the weights adapt; the normalization buffers do not
+            params.set(k, params.get(k).requires_grad_())
+        out = adapt(ens.model, tau, alpha=1.0, L=5, first_order=True, params=params, max_norm=max_norm)
+        return torch.stack([sum(((out.get(k) - stacked.get(k))[i] ** 2).sum() for k in keys).sqrt() for i in (0, 1)])
+
+    free, bounded = step(None), step(50.0)
+    assert free[1] > 1000 > 50 > free[0]  # the diverging member's raw step, the healthy one's
+    torch.testing.assert_close(bounded, torch.stack([free[0], torch.tensor(50.0)]))
+    assert torch.equal(bounded[0], free[0])  # below the bound: bitwise unchanged

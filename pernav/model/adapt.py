@@ -51,7 +51,8 @@ def trajectory_windows(trajectory: TensorDictBase, L: int, stride: int = 1) -> T
 
 
 def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
-          first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None) -> TensorDictBase:
+          first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None,
+          max_norm: float | None = None) -> TensorDictBase:
     """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over the L-slices of ``tau``
     (by default the slices that tile ``tau``, ``stride=L``: every transition is predicted once, at every
     rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
@@ -59,6 +60,10 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
 
     ``params`` defaults to the model's own (meta) parameters; stacked ensemble parameters (batch ``[E]``)
     adapt every member at once. Buffers (normalization statistics) are carried over unchanged.
+
+    ``max_norm``: the step's gradient is scaled down to at most this global norm (per member), differentiably.
+    A model whose L-step rollouts diverge on ``tau`` has an adaptation gradient of thousands (typically 5-20);
+    unclipped, ``alpha`` times it throws the adapted parameters far off and the meta loss overflows.
     """
     params = meta_parameters(model) if params is None else params
     keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad]
@@ -69,6 +74,11 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
         loss = multistep_loss(model, windows, params=params)
         # stacked ensemble parameters give one loss per member: their sum's gradient is each member's own
         grads = torch.autograd.grad(loss.sum(), [params.get(k) for k in keys], create_graph=not first_order)
+        if max_norm is not None:
+            lead = params.batch_dims  # 1 for stacked ensemble parameters: one norm per member
+            sq = sum(g.pow(2).flatten(lead).sum(-1) for g in grads)
+            scale = (max_norm / (sq.sqrt() + 1e-12)).clamp(max=1.0)  # exactly 1 (no change) below max_norm
+            grads = [g * scale.reshape(scale.shape + (1,) * (g.ndim - lead)) for g in grads]
     adapted = params.copy()  # shallow: buffers are shared, parameters replaced below
     for k, g in zip(keys, grads, strict=True):
         adapted.set(k, params.get(k) - alpha * g)

@@ -324,7 +324,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
                    for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,

@@ -93,6 +93,10 @@ class EnsembleTrainer:
     def skipped(self) -> int:
         return sum(m.skipped for m in self.members)
 
+    @property
+    def clipped(self) -> int:
+        return sum(m.clipped for m in self.members)
+
     def fit_normalization(self) -> None:
         for m in self.members:
             m.fit_normalization()
@@ -118,7 +122,7 @@ class EnsembleTrainer:
         total = torch.zeros(len(self.members))
         for r, n, batch in batches:
             used = (adapt(model, self.buffers.tau(r), alpha=cfg.alpha, L=cfg.L, first_order=cfg.first_order,
-                          params=params) if meta else params)
+                          params=params, max_norm=cfg.max_grad_norm) if meta else params)
             weights = None if self.trajectory_weights is None else self.trajectory_weights[:, batch["traj"][:, 0]]
             total = total + multistep_loss(model, batch, params=used, weights=weights) * (n / cfg.batch)
         values = total.detach()
@@ -136,7 +140,8 @@ class EnsembleTrainer:
         for m in self.members:
             if adapted:
                 with torch.enable_grad():
-                    out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True).detach())
+                    out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True,
+                                     max_norm=self.config.max_grad_norm).detach())
             else:
                 out.append(meta_parameters(m.model).detach().clone())
         return out

@@ -7,7 +7,8 @@ loss of the adapted parameters on windows of that round's data, and step the met
 loss of the parameters themselves on windows from all rounds (the warm start of Eq. 1 and SysID).
 
 A non-finite loss (or gradient) is never applied: the update is skipped, counted in ``skipped`` and the
-parameters stay the last good ones.
+parameters stay the last good ones. Gradients above ``max_grad_norm`` (the update's and ``U``'s inner step)
+are scaled down to it, counted in ``clipped``.
 
 Example:
     >>> import torch
@@ -65,6 +66,10 @@ class TrainConfig:
     # 0: adapt with U, one gradient step on tau (the paper). n > 0: adapt by n maximum-likelihood updates (fresh
     # Adam, lr) from the meta parameters on the round user's own drives, tau and calibration (EnsembleTrainer.fine_tuned)
     personal_updates: int = 0
+    # gradient-norm clip of every update and of U's adaptation step (None: none). Typical norms are 5-20; a
+    # model whose rollouts diverge gives thousands, and unclipped one such step left an ensemble member whose
+    # every later meta update overflowed (skipped, so frozen bad; docs/reliability.md)
+    max_grad_norm: float | None = 100.0
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -77,7 +82,7 @@ class FTMLTrainer:
         self.model, self.buffers, self.config = model, buffers, config
         self.optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         self.generator = torch.Generator().manual_seed(seed)
-        self.skipped = 0
+        self.skipped = self.clipped = 0
         self.losses: list[float] = []
 
     # ----- data ---------------------------------------------------------------------------------
@@ -109,12 +114,15 @@ class FTMLTrainer:
             self.optimizer.zero_grad(set_to_none=True)
             log.warning("non-finite model loss (%s): update skipped, parameters kept", value)
             return value
-        grads = [p.grad for p in self.model.parameters() if p.grad is not None]
-        if not all(torch.isfinite(g).all() for g in grads):
+        params = [p for p in self.model.parameters() if p.grad is not None]
+        if not all(torch.isfinite(p.grad).all() for p in params):
             self.skipped += 1
             self.optimizer.zero_grad(set_to_none=True)
             log.warning("non-finite gradient: update skipped, parameters kept")
             return float("nan")
+        if self.config.max_grad_norm is not None:
+            norm = torch.nn.utils.clip_grad_norm_(params, self.config.max_grad_norm)
+            self.clipped += int(norm > self.config.max_grad_norm)
         self.optimizer.step()
         self.losses.append(value)
         return value
@@ -142,7 +150,7 @@ class FTMLTrainer:
         total = 0.0
         for r, n, batch in self.meta_batches() if batches is None else batches:
             adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
-                            first_order=self.config.first_order)
+                            first_order=self.config.first_order, max_norm=self.config.max_grad_norm)
             total = total + multistep_loss(self.model, batch, params=adapted) * (n / self.config.batch)
         return self._apply(total)
 
@@ -170,7 +178,8 @@ class FTMLTrainer:
         tau = self.buffers.tau(round_)
         if adapted and params is None:
             with torch.enable_grad():
-                params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True)
+                params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True,
+                               max_norm=self.config.max_grad_norm)
             params = params.detach()
         elif not adapted:
             params = None
@@ -194,7 +203,7 @@ class FTMLTrainer:
     def state_dict(self) -> dict[str, Any]:
         return {"model": self.model.state_dict(), "model_config": self.model.config(),
                 "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
-                "skipped": self.skipped}
+                "skipped": self.skipped, "clipped": self.clipped}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.model.load_state_dict(state["model"])
@@ -203,3 +212,4 @@ class FTMLTrainer:
         self.optimizer.load_state_dict(copy.deepcopy(state["optimizer"]))
         self.generator.set_state(state["generator"])
         self.skipped = int(state["skipped"])
+        self.clipped = int(state.get("clipped", 0))  # checkpoints before gradient clipping have none
