@@ -1,0 +1,49 @@
+"""Recipes that diagnose a study: they run and report what they claim."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _recipe(name: str):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "recipes" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_departure_check_replacing_a_step_by_explores_own_action_changes_nothing_and_another_does():
+    from pernav.study.config import preset
+    from pernav.study.runner import episode
+
+    check = _recipe("departure_check")
+    cfg = preset("default")
+    entry = cfg.entries_for("Town1")[3]  # the first online round
+    plain = episode(cfg, "Town1", entry, 0, 7, check.OneStepChanged(-1, 0))
+    spoken = [t for t, a in enumerate(plain["action"].tolist()) if a != 0]
+    t, a = spoken[0], int(plain["action"][spoken[0]])
+    same = episode(cfg, "Town1", entry, 0, 7, check.OneStepChanged(t, a))
+    assert same["action"].tolist() == plain["action"].tolist()
+    silenced = episode(cfg, "Town1", entry, 0, 7, check.OneStepChanged(t, 0))
+    assert silenced["action"][t] == 0 and plain["action"][t] != 0
+
+
+@pytest.mark.parametrize("bad, message", [(["--label", "nobody"], "no round 'nobody'"),
+                                          (["--action", "9"], "--action must be in 0-6")])
+def test_departure_check_rejects_bad_input_with_exit_2(bad, message, tmp_path):
+    args = {"--schedule": str(ROOT / "recipes/configs/headroom.yaml"), "--town": "Town1", "--label": "Online 0",
+            "--route": "0", "--step": "3", "--action": "0", "--seeds": "0"}
+    for k, v in zip(bad[::2], bad[1::2], strict=True):
+        args[k] = v
+    out = subprocess.run([sys.executable, str(ROOT / "recipes/departure_check.py"),
+                          *[x for kv in args.items() for x in kv], "--json", str(tmp_path / "x.json")],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
+    assert not (tmp_path / "x.json").exists()
