@@ -79,16 +79,21 @@ def test_round_loss_is_held_out_and_exact():
     assert trainer.round_loss(0, adapted=False) == trainer.round_loss(0, adapted=False)  # no sampling
 
 
+def _two_round_ensemble(config: TrainConfig, size: int, tau_length: int, other_length: int) -> EnsembleTrainer:
+    """An ensemble of small models (seed 2, normalization fitted) on two rounds of random data, each with a tau
+    of ``tau_length`` steps and one more trajectory of ``other_length``."""
+    buffers = RoundBuffers(L=config.L, seed=0)
+    for r in (0, 1):
+        buffers.add(r, _trajectory(tau_length, seed=2 * r), tau=True)
+        buffers.add(r, _trajectory(other_length, seed=2 * r + 1))
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers, config, size=size, seed=2)
+    ens.fit_normalization()
+    return ens
+
+
 def test_batched_ensemble_update_equals_each_member_stepping_alone():
     def make(first_order: bool) -> EnsembleTrainer:
-        buffers = RoundBuffers(L=3, seed=0)
-        for r in (0, 1):
-            buffers.add(r, _trajectory(20, seed=2 * r), tau=True)
-            buffers.add(r, _trajectory(15, seed=2 * r + 1))
-        ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers,
-                              TrainConfig(batch=12, L=3, rounds_per_update=2, first_order=first_order), size=3, seed=2)
-        ens.fit_normalization()
-        return ens
+        return _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2, first_order=first_order), 3, 20, 15)
 
     for meta, first_order in ((True, False), (True, True), (False, False)):
         batched, alone = make(first_order), make(first_order)
@@ -180,13 +185,7 @@ def test_calibration_drives_are_user_data_held_out_of_the_round_loss_and_round_t
 def _diverging_ensemble(max_grad_norm: float | None) -> EnsembleTrainer:
     """Two members; the second's weights scaled 3x so its L-step rollouts diverge (L-step loss ~1e4, adaptation
     gradient in the thousands), as a member of a real study once did (seed 2, Town1: docs/reliability.md)."""
-    buffers = RoundBuffers(L=5, seed=0)
-    for r in (0, 1):
-        buffers.add(r, _trajectory(30, seed=2 * r), tau=True)
-        buffers.add(r, _trajectory(25, seed=2 * r + 1))
-    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers,
-                          TrainConfig(batch=12, L=5, rounds_per_update=2, max_grad_norm=max_grad_norm), size=2, seed=2)
-    ens.fit_normalization()
+    ens = _two_round_ensemble(TrainConfig(batch=12, L=5, rounds_per_update=2, max_grad_norm=max_grad_norm), 2, 30, 25)
     with torch.no_grad():
         for p in ens.members[1].model.net.parameters():
             p.mul_(3.0)
