@@ -133,6 +133,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
     p.add_argument("--personal-updates", type=int, metavar="N",
                    help="adapt by N updates on the round user's drives instead of one step on tau (0: the paper's U)")
+    p.add_argument("--adapt-step", choices=["backtrack", "fixed"],
+                   help="test-time U's step: backtrack (default: halve alpha until tau's loss decreases enough) or "
+                        "fixed (the paper's alpha)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -145,6 +148,7 @@ def _study(args: argparse.Namespace) -> None:
     import logging
 
     from pernav.study import load_schedule, preset, run_study
+    from pernav.trainer.ftml import TrainConfig
 
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     if args.workers < 1:
@@ -170,6 +174,10 @@ def _study(args: argparse.Namespace) -> None:
         cfg.calibration = args.calibration
     if args.personal_updates is not None:
         cfg.train.personal_updates = args.personal_updates
+    if args.adapt_step == "fixed":
+        cfg.train.backtrack = None
+    elif args.adapt_step == "backtrack" and cfg.train.backtrack is None:
+        cfg.train.backtrack = TrainConfig().backtrack
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

@@ -224,3 +224,46 @@ def test_adaptation_clip_bounds_the_step_per_member_and_is_exact_below_the_bound
     assert free[1] > 1000 > 50 > free[0]  # the diverging member's raw step, the healthy one's
     torch.testing.assert_close(bounded, torch.stack([free[0], torch.tensor(50.0)]))
     assert torch.equal(bounded[0], free[0])  # below the bound: bitwise unchanged
+
+
+def _step_size(adapted: TensorDict, params: TensorDict, grad_step: TensorDict, keys: list) -> float:
+    """The a of ``adapted = params - a * g`` given the unit step ``params - g``."""
+    num = sum(((params.get(k) - adapted.get(k)) * (params.get(k) - grad_step.get(k))).sum() for k in keys)
+    return float(num / sum(((params.get(k) - grad_step.get(k)) ** 2).sum() for k in keys))
+
+
+def test_backtracking_takes_the_largest_halved_step_that_passes_armijo_per_member():
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    ens = _diverging_ensemble(100.0)
+    tau = ens.buffers.tau(0)
+    stacked = torch.stack([meta_parameters(m.model) for m in ens.members]).detach()
+    keys = [k for k, v in stacked.items(True, True) if k[0] == "net"]
+    for k in keys:
+        stacked.set(k, stacked.get(k).requires_grad_())
+    windows = trajectory_windows(tau, 5, 5)
+    for alpha in (1e-5, 0.05, 0.5, 50.0):
+        got = adapt(ens.model, tau, alpha=alpha, L=5, first_order=True, params=stacked, max_norm=100.0, backtrack=0.5)
+        unit = adapt(ens.model, tau, alpha=1.0, L=5, first_order=True, params=stacked, max_norm=100.0)
+        with torch.no_grad():
+            loss0 = multistep_loss(ens.model, windows, params=stacked)
+            g2 = sum(((stacked.get(k) - unit.get(k)) ** 2).flatten(1).sum(-1) for k in keys)
+            for i in range(2):
+                # brute force: the first of alpha, alpha/2, alpha/4, alpha/8 whose step passes the test
+                passing = [alpha / 2 ** j for j in range(4)
+                           if multistep_loss(ens.model, windows, params=adapt(
+                               ens.model, tau, alpha=alpha / 2 ** j, L=5, first_order=True, params=stacked,
+                               max_norm=100.0))[i] <= loss0[i] - 0.5 * alpha / 2 ** j * g2[i]]
+                expected = passing[0] if passing else alpha / 8
+                assert abs(_step_size(got[i], stacked[i], unit[i], keys) / expected - 1) < 1e-2  # halvings differ 2x
+                # each member's step is its own: the same as adapting that member alone
+                alone = adapt(ens.members[i].model, tau, alpha=alpha, L=5, first_order=True, max_norm=100.0,
+                              backtrack=0.5)
+                for k in keys:
+                    torch.testing.assert_close(got[i].get(k), alone.get(k), rtol=1e-3, atol=1e-3)
+    tiny = adapt(ens.model, tau, alpha=1e-5, L=5, first_order=True, params=stacked, max_norm=100.0, backtrack=0.5)
+    fixed = adapt(ens.model, tau, alpha=1e-5, L=5, first_order=True, params=stacked, max_norm=100.0)
+    assert all(torch.equal(tiny.get(k), fixed.get(k)) for k in keys)  # a step that passes is the paper's own
+    with pytest.raises(ValueError, match="backtrack"):
+        adapt(ens.model, tau, alpha=0.01, L=5, first_order=False, params=stacked, backtrack=0.5)

@@ -198,3 +198,17 @@ def test_trainers_loaded_from_one_state_share_no_tensors():
     b.plain_update()
     assert all(torch.equal(m, s["exp_avg"]) for m, s in zip(moments, a.optimizer.state.values(), strict=True))
     assert all(torch.equal(p, q) for p, q in zip(params, a.model.parameters(), strict=True))
+
+
+def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step(tmp_path, capsys):
+    from pernav.study import PresetError
+
+    cfg = preset("smoke")
+    cfg.train.backtrack = 1.5
+    with pytest.raises(PresetError, match=r"train.backtrack must be in \(0, 1\) or null"):
+        cfg.validate()
+    cfg.train.backtrack = None  # the paper's fixed step
+    cfg.validate()
+    with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
+        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--adapt-step", "huge"])
+    assert exit_.value.code == 2 and "--adapt-step" in capsys.readouterr().err and not (tmp_path / "s").exists()

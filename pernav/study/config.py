@@ -76,6 +76,9 @@ class StudyConfig:
         if self.calibration < 0 or self.train.personal_updates < 0:
             raise PresetError(f"calibration and train.personal_updates must be >= 0, got {self.calibration} and "
                               f"{self.train.personal_updates}")
+        if self.train.backtrack is not None and not 0.0 < self.train.backtrack < 1.0:
+            raise PresetError(f"train.backtrack must be in (0, 1) or null (the paper's fixed step), got "
+                              f"{self.train.backtrack}")
         for town in self.towns:
             phases = [e.phase for e in self.entries_for(town)]
             if "offline" not in phases or "online" not in phases:

@@ -306,9 +306,13 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
+                trainer = learners["adapt"].trainer
                 personal = adapted["adapt"] if cfg.train.personal_updates else None  # else U on tau, as planned
-                state["online_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, True, personal)
-                state["unadapted_losses"][entry.label] = learners["adapt"].trainer.round_loss(index, adapted=False)
+                state["online_losses"][entry.label] = trainer.round_loss(index, True, personal)
+                state["unadapted_losses"][entry.label] = trainer.round_loss(index, adapted=False)
+                if personal is None and cfg.train.backtrack is not None:  # the paper's fixed step, for comparison
+                    fixed = trainer.parameters(learners["adapt"].buffers.tau(index), True, cfg.train.alpha, True)
+                    state.setdefault("fixed_step_losses", {})[entry.label] = trainer.round_loss(index, True, fixed)
             with _Timer(profile, "training_s"):
                 for learner in learners.values():
                     learner.trainer.train(cfg.train.updates, meta=learner.meta)
@@ -327,7 +331,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
                    for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
-            "unadapted_losses": state["unadapted_losses"], "diagnostics": diagnostics,
+            "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
+            "diagnostics": diagnostics,
             "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
             "profile": {k: round(v, 2) for k, v in state["profile"].items()}}
 

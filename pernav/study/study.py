@@ -150,7 +150,10 @@ def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
             "cost_regret": costs,  # adapt - hindsight episodic cost per round
             "average_cost_regret": running_mean(costs),
             # does one-shot adaptation help? L-step loss of adapt's model on D_t without / with U(P_t, tau_t)
-            "adaptation": {k: {"unadapted": t["unadapted_losses"].get(k), "adapted": online[k]} for k in online},
+            # (and with the paper's fixed step where U backtracks: "adapted_fixed_step")
+            "adaptation": {k: {"unadapted": t["unadapted_losses"].get(k), "adapted": online[k],
+                               **({"adapted_fixed_step": t["fixed_step_losses"][k]}
+                                  if k in t.get("fixed_step_losses", {}) else {})} for k in online},
         }
     diagnostics = {t["town"]: t["diagnostics"] for t in towns}
     return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret,

@@ -134,14 +134,17 @@ class EnsembleTrainer:
         steps = [m.step(float(v)) for m, v in zip(self.members, values, strict=True)]
         return sum(steps) / len(steps)
 
-    def parameters(self, tau: TensorDictBase, adapted: bool, alpha: float) -> list[TensorDictBase]:
-        """Every member's parameters (detached), each adapted on ``tau`` with ``U`` when ``adapted``."""
+    def parameters(self, tau: TensorDictBase, adapted: bool, alpha: float,
+                   fixed_step: bool = False) -> list[TensorDictBase]:
+        """Every member's parameters (detached), each adapted on ``tau`` with ``U`` when ``adapted`` (its step
+        backtracked as ``config.backtrack`` says; ``fixed_step``: the paper's fixed ``alpha`` regardless)."""
         out = []
+        backtrack = None if fixed_step else self.config.backtrack
         for m in self.members:
             if adapted:
                 with torch.enable_grad():
                     out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True,
-                                     max_norm=self.config.max_grad_norm).detach())
+                                     max_norm=self.config.max_grad_norm, backtrack=backtrack).detach())
             else:
                 out.append(meta_parameters(m.model).detach().clone())
         return out

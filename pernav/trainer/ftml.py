@@ -70,6 +70,10 @@ class TrainConfig:
     # model whose rollouts diverge gives thousands, and unclipped one such step left an ensemble member whose
     # every later meta update overflowed (skipped, so frozen bad; docs/reliability.md)
     max_grad_norm: float | None = 100.0
+    # test-time U (planning, the held-out check; not the meta updates): the Armijo constant of a step-halving
+    # line search from alpha on tau (pernav.model.adapt); None: the paper's fixed step alpha. A fixed step
+    # overshoots on a driver whose gradient is large (docs/planning.md, "One step, how long?")
+    backtrack: float | None = 0.5
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -179,7 +183,7 @@ class FTMLTrainer:
         if adapted and params is None:
             with torch.enable_grad():
                 params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True,
-                               max_norm=self.config.max_grad_norm)
+                               max_norm=self.config.max_grad_norm, backtrack=self.config.backtrack)
             params = params.detach()
         elif not adapted:
             params = None
