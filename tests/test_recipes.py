@@ -47,3 +47,18 @@ def test_departure_check_rejects_bad_input_with_exit_2(bad, message, tmp_path):
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_step_size_check_scores_each_rule_by_the_members_mean_held_out_loss(tmp_path):
+    check = _recipe("step_size_check")
+    # one member whose held-out loss is lowest at alpha/2 (step 0.005) and rises past alpha; on tau the loss
+    # falls to alpha/2 and stalls, so Armijo (c=0.5, |g| = 20) rejects alpha and accepts alpha/2
+    member = {"gnorm": 20.0, "held": [10.0, 9.8, 9.5, 9.0, 10.5, 14.0], "tau": [10.0, 9.8, 9.6, 8.9, 8.8, 9.5],
+              "cv": [20.0, 19.0, 18.0, 17.0, 18.0, 25.0]}
+    summary = check.summarize([{"round": 3, "members": [member, member]}])
+    assert summary["fixed 0.01"] == {"lowered": 0, "rounds": 1, "mean_ratio": 1.05}
+    assert summary["armijo c=0.5"] == {"lowered": 1, "rounds": 1, "mean_ratio": 0.9}
+    assert summary["2-fold on tau"]["mean_ratio"] == 0.9 and summary["fixed 0.02"]["lowered"] == 0
+    out = subprocess.run([sys.executable, str(ROOT / "recipes/step_size_check.py"), "--summarize", str(tmp_path)],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 2 and "no rows.json" in out.stderr and "Traceback" not in out.stderr
