@@ -12,9 +12,13 @@ Model error is the rest: a study's learner (the same planner on the learned, ada
 against ``retime@true`` (``PanelJob`` also drives ``"retime@learned"`` given a model and its parameters).
 Paired differences to explore carry 95 % bootstrap CIs. Results are written as jobs finish.
 
+``--planner-option KEY=VALUE`` (repeatable, as in ``pernav study``) drives the retime planner with other options
+on the true simulator too, as its own method ``retime[KEY=VALUE ...]@true``; with ``--resume`` on an earlier
+``--json`` only the new method's episodes run, paired with the kept ones.
+
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
 [--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
-[--plot PNG]
+[--plot PNG] [--planner-option KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode, episode_key
+from pernav.planner.factory import parse_planner_options
 
 TOWNS = ("Town1", "Town3")
 
@@ -79,23 +84,36 @@ def main() -> None:
     ap.add_argument("--resume", action="store_true", help="keep the episodes already in --json")
     ap.add_argument("--plot", default=None, help="scatter of each episode's cost vs explore's "
                     "(default: --json with .png)")
+    ap.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="also drive retime@true with these options (pernav.planner.PLANNER_DEFAULTS); repeatable")
     args = ap.parse_args()
     bad = [d for d in args.drivers if d not in PANEL]
     if bad:
         ap.error(f"unknown driver {bad[0]!r}; choose from {', '.join(PANEL)}")
+    try:
+        options = parse_planner_options("retime", args.planner_option)
+    except ValueError as exc:
+        ap.error(f"--planner-option {exc}")
+    variant = f"retime[{' '.join(args.planner_option)}]@true"  # its label in the episodes
     jobs = [PanelJob(d, t, r, 1000 + r, m, samples=args.samples)
             for m in ("explore", "oracle", "retime@true") for d, t, r in product(args.drivers, TOWNS, range(args.routes))]
     jobs += [PanelJob(d, t, r, 1000 + r, "paper@true", samples=args.samples)
              for d, t, r in product(args.drivers, TOWNS, range(args.paper_routes))]
+    labels = {id(j): j.method for j in jobs}
+    if options:
+        variants = [PanelJob(d, t, r, 1000 + r, "retime@true", samples=args.samples, planner=options)
+                    for d, t, r in product(args.drivers, TOWNS, range(args.routes))]
+        labels.update({id(j): variant for j in variants})
+        jobs += variants
     episodes = []
     if args.resume and Path(args.json).is_file():  # keep finished episodes, run only the missing ones
         episodes = json.loads(Path(args.json).read_text())["episodes"]
         done = {(*episode_key(e), e["method"]) for e in episodes}
-        jobs = [j for j in jobs if (j.driver, j.town, j.route, j.seed, j.method) not in done]
+        jobs = [j for j in jobs if (j.driver, j.town, j.route, j.seed, labels[id(j)]) not in done]
     with ProcessPoolExecutor(args.workers) as pool:
-        futures = [pool.submit(drive_panel_episode, j) for j in jobs]
+        futures = {pool.submit(drive_panel_episode, j): labels[id(j)] for j in jobs}
         for f in tqdm(as_completed(futures), total=len(futures), desc="episodes"):
-            episodes.append(f.result())
+            episodes.append({**f.result(), "method": futures[f]})
             with open(args.json, "w") as fh:
                 json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, fh, indent=1)
     print(comparison_table(episodes))
