@@ -174,10 +174,8 @@ def _study(args: argparse.Namespace) -> None:
         cfg.calibration = args.calibration
     if args.personal_updates is not None:
         cfg.train.personal_updates = args.personal_updates
-    if args.adapt_step == "fixed":
-        cfg.train.backtrack = None
-    elif args.adapt_step == "backtrack" and cfg.train.backtrack is None:
-        cfg.train.backtrack = TrainConfig().backtrack
+    if args.adapt_step is not None:
+        cfg.train.backtrack = None if args.adapt_step == "fixed" else TrainConfig().backtrack
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

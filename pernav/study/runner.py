@@ -307,11 +307,12 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
                 trainer = learners["adapt"].trainer
-                personal = adapted["adapt"] if cfg.train.personal_updates else None  # else U on tau, as planned
-                state["online_losses"][entry.label] = trainer.round_loss(index, True, personal)
+                # the parameters adapt planned with (U on tau, or the personal updates); the model is unchanged
+                state["online_losses"][entry.label] = trainer.round_loss(index, True, adapted["adapt"])
                 state["unadapted_losses"][entry.label] = trainer.round_loss(index, adapted=False)
-                if personal is None and cfg.train.backtrack is not None:  # the paper's fixed step, for comparison
-                    fixed = trainer.parameters(learners["adapt"].buffers.tau(index), True, cfg.train.alpha, True)
+                if not cfg.train.personal_updates and cfg.train.backtrack is not None:  # the paper's fixed step too
+                    fixed = trainer.parameters(learners["adapt"].buffers.tau(index), adapted=True,
+                                               alpha=cfg.train.alpha, fixed_step=True)
                     state.setdefault("fixed_step_losses", {})[entry.label] = trainer.round_loss(index, True, fixed)
             with _Timer(profile, "training_s"):
                 for learner in learners.values():
