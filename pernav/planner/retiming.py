@@ -109,7 +109,8 @@ class RetimingPlanner(MPCPlannerBase):
     Args:
         env: an env with ``imagine(root, sequences) -> (positions, goals)``, ``[M, N, H, 2]`` each.
         horizon: imagined steps (12: prompt, audio, reaction, commit and the turn of the slowest driver).
-        advance, delay: how many steps earlier / later explore's plan may be re-timed.
+        advance, delay: how many steps earlier / later explore's plan may be re-timed (``delay`` 0 by default:
+            only earlier, see :data:`~pernav.planner.factory.PLANNER_DEFAULTS`).
         route_weight: weight of the squared distance to the planned route.
         progress_weight: reward per metre of route progress at the horizon.
         margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
@@ -124,7 +125,7 @@ class RetimingPlanner(MPCPlannerBase):
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
-    def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 3, route_weight: float = 1.0,
+    def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
                  max_spread: float | None = 2.0, rel_spread: float = 0.0, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
