@@ -14,7 +14,9 @@ Paired differences to explore carry 95 % bootstrap CIs. Results are written as j
 
 ``--planner-option KEY=VALUE`` (repeatable, as in ``pernav study``) drives the retime planner with other options
 on the true simulator too, as its own method ``retime[KEY=VALUE ...]@true``; with ``--resume`` on an earlier
-``--json`` only the new method's episodes run, paired with the kept ones.
+``--json`` only the new method's episodes run, paired with the kept ones. The file records the retime defaults
+its ``retime@true`` episodes were driven with; ``--resume`` refuses (exit 2) to add ``retime@true`` episodes
+under other defaults (files from before 2026-11-24 record none and used ``delay`` 3).
 
 Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
 [--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
@@ -32,7 +34,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode, episode_key
-from pernav.planner.factory import parse_planner_options
+from pernav.planner.factory import PLANNER_DEFAULTS, parse_planner_options
 
 TOWNS = ("Town1", "Town3")
 
@@ -105,17 +107,27 @@ def main() -> None:
                     for d, t, r in product(args.drivers, TOWNS, range(args.routes))]
         labels.update({id(j): variant for j in variants})
         jobs += variants
-    episodes = []
+    episodes, defaults = [], PLANNER_DEFAULTS["retime"]  # what "retime@true" means in this file
     if args.resume and Path(args.json).is_file():  # keep finished episodes, run only the missing ones
-        episodes = json.loads(Path(args.json).read_text())["episodes"]
+        kept = json.loads(Path(args.json).read_text())
+        episodes = kept["episodes"]
         done = {(*episode_key(e), e["method"]) for e in episodes}
         jobs = [j for j in jobs if (j.driver, j.town, j.route, j.seed, labels[id(j)]) not in done]
+        if any(e["method"] == "retime@true" for e in episodes):
+            # a file written before the record (None) used other defaults: delay was 3 until 2026-11-24
+            defaults = kept.get("planner_defaults")
+            if defaults != PLANNER_DEFAULTS["retime"] and any(labels[id(j)] == "retime@true" for j in jobs):
+                ap.error(f"--resume: {args.json}'s retime@true episodes were driven with the retime defaults "
+                         f"{defaults} (null: not recorded, delay 3 before 2026-11-24), now "
+                         f"{PLANNER_DEFAULTS['retime']}; adding episodes would mix the two under one label. "
+                         "Use a new --json, or --planner-option for a labelled variant with the options you want")
     with ProcessPoolExecutor(args.workers) as pool:
         futures = {pool.submit(drive_panel_episode, j): labels[id(j)] for j in jobs}
         for f in tqdm(as_completed(futures), total=len(futures), desc="episodes"):
             episodes.append({**f.result(), "method": futures[f]})
             with open(args.json, "w") as fh:
-                json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "episodes": episodes}, fh, indent=1)
+                json.dump({"drivers": {d: PANEL[d] for d in args.drivers}, "planner_defaults": defaults,
+                           "episodes": episodes}, fh, indent=1)
     print(comparison_table(episodes))
     scatter(episodes, args.plot or str(Path(args.json).with_suffix(".png")))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -47,6 +48,21 @@ def test_departure_check_rejects_bad_input_with_exit_2(bad, message, tmp_path):
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 2 and message in out.stderr and "Traceback" not in out.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_planning_error_resume_refuses_to_mix_retime_defaults_and_leaves_the_file(tmp_path):
+    from pernav.diagnostics.panel import PANEL
+
+    driver = next(iter(PANEL))
+    kept = tmp_path / "kept.json"  # one retime@true episode, written before the defaults were recorded
+    kept.write_text(json.dumps({"drivers": {}, "episodes": [
+        {"driver": driver, "town": "Town1", "route": 0, "seed": 1000, "method": "retime@true", "tracking_cost": 1.0}]}))
+    before = kept.read_text()
+    out = subprocess.run([sys.executable, str(ROOT / "recipes/planning_error.py"), "--routes", "1", "--paper-routes",
+                          "0", "--drivers", driver, "--json", str(kept), "--resume"],
+                         capture_output=True, text=True, cwd=ROOT)
+    assert out.returncode == 2 and "would mix" in out.stderr and "Traceback" not in out.stderr
+    assert kept.read_text() == before
 
 
 def test_step_size_check_scores_each_rule_by_the_members_mean_held_out_loss(tmp_path):
