@@ -75,6 +75,12 @@ def scatter(episodes: list[dict], path: str) -> None:
     plt.close(fig)
 
 
+def _same_defaults(recorded: dict | None, current: dict) -> bool:
+    """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written is off
+    (``None``) by default, so a file without it drove with it off."""
+    return recorded is not None and {**{k: v for k, v in current.items() if v is None}, **recorded} == current
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--routes", type=int, default=5, help="routes 0..N-1 of each town")
@@ -116,7 +122,7 @@ def main() -> None:
         if any(e["method"] == "retime@true" for e in episodes):
             # a file written before the record (None) used other defaults: delay was 3 until 2026-11-24
             defaults = kept.get("planner_defaults")
-            if defaults != PLANNER_DEFAULTS["retime"] and any(labels[id(j)] == "retime@true" for j in jobs):
+            if not _same_defaults(defaults, PLANNER_DEFAULTS["retime"]) and any(labels[id(j)] == "retime@true" for j in jobs):
                 ap.error(f"--resume: {args.json}'s retime@true episodes were driven with the retime defaults "
                          f"{defaults} (null: not recorded, delay 3 before 2026-11-24), now "
                          f"{PLANNER_DEFAULTS['retime']}; adding episodes would mix the two under one label. "

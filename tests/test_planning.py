@@ -149,17 +149,19 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
     N, e = res.candidates.shape[0], res.explore
     j = next(i for i in range(N) if int(res.candidates[i, 0]) != int(res.candidates[e, 0]))
 
-    def crafted(gains: tuple[float, float], effects: tuple[float, float]):
+    def crafted(gains: tuple[float, float], effects: tuple[float, float], off: tuple[float, float]):
         cost = torch.full((2, N), 100.0)
         cost[:, j] = 100.0 - torch.tensor(gains)
         pos = torch.zeros(2, N, 4, 2)
         pos[:, j, :, 0] = torch.tensor(effects)[:, None]  # each row moves the car this far off explore's plan
-        return lambda *_: (cost, pos)
+        away = torch.full((2, N), 1.0)  # every plan within 1 m of the route ...
+        away[:, e] = torch.tensor(off)  # ... but explore's, this far off it in each row
+        return lambda *_: (cost, pos, away)
 
-    def leaves(gains, effects, **kw) -> bool:
+    def leaves(gains, effects, off=(1.0, 1.0), **kw) -> bool:
         kw = {"rel_spread": 0.5, **kw}
         planner = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=20.0, rel_margin=0.0, **kw)
-        planner.costs = crafted(gains, effects)
+        planner.costs = crafted(gains, effects, off)
         return planner.decide(root)[1].chosen == j
 
     assert leaves((60.0, 50.0), (30.0, 20.0))  # both clear 20; spread 5 m <= 2 + 0.5 * 25 m
@@ -167,6 +169,13 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
     assert leaves((95.0, 10.0), (30.0, 20.0), agree=0.5)
     assert not leaves((60.0, 50.0), (30.0, 20.0), rel_spread=0.0)  # a fixed 2 m bound holds it back
     assert not leaves((60.0, 50.0), (40.0, 0.0))  # spread 20 m > 2 + 0.5 * 20 m: they disagree on the effect
+    # a rescue: every row sees explore's plan leave the route by more than 10 m and the candidate keep to it
+    assert leaves((60.0, 50.0), (40.0, 0.0), off=(30.0, 12.0), rescue=10.0)
+    assert not leaves((60.0, 50.0), (40.0, 0.0), off=(30.0, 8.0), rescue=10.0)  # one row sees explore stay on
+    assert not leaves((60.0, 10.0), (40.0, 0.0), off=(30.0, 12.0), rescue=10.0)  # the gain test still applies
+    assert not leaves((60.0, 50.0), (40.0, 0.0), off=(30.0, 12.0))  # no waiver by default
+    with pytest.raises(ValueError, match="rescue"):
+        RetimingPlanner(env, rescue=0.0)
 
 
 def test_retiming_planner_with_21_actions_plans_every_playback():

@@ -65,6 +65,17 @@ def test_planning_error_resume_refuses_to_mix_retime_defaults_and_leaves_the_fil
     assert kept.read_text() == before
 
 
+def test_planning_error_counts_an_option_added_later_as_off_in_files_written_before_it():
+    from pernav.planner.factory import PLANNER_DEFAULTS
+
+    same = _recipe("planning_error")._same_defaults
+    current = PLANNER_DEFAULTS["retime"]
+    before_rescue = {k: v for k, v in current.items() if k != "rescue"}  # a file from before the option
+    assert current["rescue"] is None and same(before_rescue, current)
+    assert not same({**before_rescue, "delay": 3}, current) and not same(None, current)
+    assert not same({**current, "rescue": 10.0}, current)
+
+
 def test_step_size_check_scores_each_rule_by_the_members_mean_held_out_loss(tmp_path):
     check = _recipe("step_size_check")
     # one member whose held-out loss is lowest at alpha/2 (step 0.005) and rises past alpha; on tau the loss

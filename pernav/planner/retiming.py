@@ -26,7 +26,9 @@ candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` 
 in at least ``agree`` of the rows (ensemble members or samples; with ``agree=1`` the worst member's gain must
 clear it: a lower confidence bound), and the rows must agree on what the re-timing does to the car's path (the
 spread of its effect, at most ``max_spread`` metres plus ``rel_spread`` times the effect's size); otherwise it
-plays explore's action. So a poor or uncertain model costs little.
+plays explore's action. So a poor or uncertain model costs little. With ``rescue`` set, the spread test is waived
+for a *rescue*: every row sees explore's plan leave the planned route by more than ``rescue`` metres within the
+horizon (a missed turn, a circled roundabout) and the candidate stay within it.
 
 Reads ``"history"``, ``"explore_future"`` ``[F]``, ``"route_ahead"`` ``[P, 2]`` and ``"action_mask"`` (the
 navigation env provides them, :mod:`pernav.env.planning`); writes ``"action"``.
@@ -122,12 +124,17 @@ class RetimingPlanner(MPCPlannerBase):
             or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
             it gained (docs/planning.md), so it is 0 by default. With one row (one model, or one true-model
             sample) the spread is 0.
+        rescue: waive the spread test where every row sees explore's plan leave the planned route by more than
+            this many metres within the horizon and the candidate stay within it in every row (the gain test
+            still applies); ``None`` (default): no waiver. The rows disagree on how far a missed exit takes the
+            car, not on whether it is missed.
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 max_spread: float | None = 2.0, rel_spread: float = 0.0, playbacks: int | None = None) -> None:
+                 max_spread: float | None = 2.0, rel_spread: float = 0.0, rescue: float | None = None,
+                 playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -140,6 +147,9 @@ class RetimingPlanner(MPCPlannerBase):
         if rel_spread < 0:
             raise ValueError(f"rel_spread must be >= 0, got {rel_spread}")
         self.rel_spread = float(rel_spread)
+        if rescue is not None and rescue <= 0:
+            raise ValueError(f"rescue must be > 0 metres or None, got {rescue}")
+        self.rescue = None if rescue is None else float(rescue)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -154,9 +164,9 @@ class RetimingPlanner(MPCPlannerBase):
             return seqs, 1
         return torch.cat([seqs * 3 + p for p in (1, 0, 2)]), 3  # normal first: explore's is row 0 of its block
 
-    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """``[M, N]`` cost of each sequence for each row of the env's imagination, and the imagined positions
-        ``[M, N, H, 2]``."""
+    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``[M, N]`` cost of each sequence for each row of the env's imagination, the imagined positions
+        ``[M, N, H, 2]`` and ``[M, N]`` the largest distance (m) from the planned route over the horizon."""
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
@@ -167,7 +177,8 @@ class RetimingPlanner(MPCPlannerBase):
         d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
         dist, nearest = d.min(-1)
         cost = cost + self.route_weight * (dist ** 2).sum(-1)
-        return cost - self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype), pos  # 3 m per route point
+        progress = self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype)  # 3 m per route point
+        return cost - progress, pos, dist.amax(-1)
 
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
@@ -191,7 +202,7 @@ class RetimingPlanner(MPCPlannerBase):
         explore_action = int(seqs[explore, 0])
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None
-        cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
+        cost, pos, off = self.costs(root, seqs)  # [M, N], [M, N, H, 2], [M, N]
         spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
         gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
@@ -200,7 +211,10 @@ class RetimingPlanner(MPCPlannerBase):
         ok &= torch.isfinite(mean)
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
             size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
-            ok &= spread <= self.max_spread + self.rel_spread * size
+            agreed = spread <= self.max_spread + self.rel_spread * size
+            if self.rescue is not None:  # explore's plan leaves the route in every row, the candidate in none
+                agreed |= bool((off[:, explore] > self.rescue).all()) & (off <= self.rescue).all(0)
+            ok &= agreed
         self.decisions += 1
         if bool(ok.any()):
             chosen = int(torch.where(ok, mean, torch.full_like(mean, float("inf"))).argmin())
