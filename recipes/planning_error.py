@@ -122,7 +122,8 @@ def main() -> None:
         if any(e["method"] == "retime@true" for e in episodes):
             # a file written before the record (None) used other defaults: delay was 3 until 2026-11-24
             defaults = kept.get("planner_defaults")
-            if not _same_defaults(defaults, PLANNER_DEFAULTS["retime"]) and any(labels[id(j)] == "retime@true" for j in jobs):
+            adding = any(labels[id(j)] == "retime@true" for j in jobs)
+            if adding and not _same_defaults(defaults, PLANNER_DEFAULTS["retime"]):
                 ap.error(f"--resume: {args.json}'s retime@true episodes were driven with the retime defaults "
                          f"{defaults} (null: not recorded, delay 3 before 2026-11-24), now "
                          f"{PLANNER_DEFAULTS['retime']}; adding episodes would mix the two under one label. "
