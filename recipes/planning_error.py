@@ -76,9 +76,9 @@ def scatter(episodes: list[dict], path: str) -> None:
 
 
 def _same_defaults(recorded: dict | None, current: dict) -> bool:
-    """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written is off
-    (``None``) by default, so a file without it drove with it off."""
-    return recorded is not None and {**{k: v for k, v in current.items() if v is None}, **recorded} == current
+    """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written (``rescue``,
+    ``rescue_evidence``) is off by default, so a file without it drove as the current defaults do."""
+    return recorded is not None and {**current, **recorded} == current
 
 
 def main() -> None:

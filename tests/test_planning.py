@@ -304,3 +304,45 @@ def test_planner_options_parse_json_values_and_name_the_allowed_keys():
     for bad, match in (("max_spread", "KEY=VALUE"), ("beam=3", "options: horizon"), ("margin=big", "a number")):
         with pytest.raises(ValueError, match=match):
             parse_planner_options("retime", [bad])
+
+
+@torch.no_grad()
+def test_alarm_check_counts_alarms_against_the_real_drive_as_a_brute_force_does():
+    from pernav.model.adapt import meta_parameters
+
+    torch.manual_seed(0)
+    members = [DynamicsModel(hidden=(16,)) for _ in range(2)]
+    planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(members[0])), horizon=3, rescue=2.0)
+    planner.params = [meta_parameters(m).detach() for m in members]
+    g = torch.Generator().manual_seed(1)
+    T = 9
+    drive = TensorDict({"history": torch.randn(T, 5, 21, generator=g), "route_ahead": torch.randn(T, 12, 2, generator=g),
+                        "action": torch.randint(7, (T,), generator=g),
+                        "next": {"observation": torch.randn(T, 14, generator=g) * 3}}, [T])
+    counts = planner.alarm_check(drive, decisions_only=False)  # the drive has no explore plan: every step
+    expected, levels, reals = {"alarms": 0, "hits": 0, "false_alarms": 0, "real": 0}, [], []
+    for t in range(T - 3):
+        off = []
+        for m in members:  # each member rolled out alone with the drive's own next three actions
+            hist, worst = drive["history"][t].unsqueeze(0), 0.0
+            for a in drive["action"][t:t + 3].tolist():
+                state = m(hist, torch.tensor([a]))
+                hist = m.next_window(hist, torch.tensor([a]), state)
+                worst = max(worst, float((drive["route_ahead"][t] - state[0, :2]).norm(dim=-1).min()))
+            off.append(worst)
+        real = max(float((drive["route_ahead"][t] - p).norm(dim=-1).min())
+                   for p in drive["next", "observation"][t:t + 3, :2]) > 2.0
+        alarm = all(o > 2.0 for o in off)
+        levels.append(min(off))
+        reals.append(real)
+        expected["alarms"] += alarm
+        expected["hits"] += alarm and real
+        expected["false_alarms"] += alarm and not real
+        expected["real"] += real
+    threshold = max([2.0] + [lv for lv, r in zip(levels, reals, strict=True) if not r])
+    assert counts.pop("threshold") == pytest.approx(threshold, abs=1e-3)
+    assert counts.pop("hits_at_threshold") == sum(lv > threshold for lv, r in zip(levels, reals, strict=True) if r)
+    assert counts == expected and counts["alarms"] + counts["real"] > 0  # the drive exercises the check
+    assert planner.alarm_check(drive, distance=1e9, decisions_only=False)["alarms"] == 0
+    with pytest.raises(ValueError, match="distance"):
+        RetimingPlanner(planner.env).alarm_check(drive)

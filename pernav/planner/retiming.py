@@ -55,7 +55,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.model.dynamics import GX, GY, STATE_DIM
+from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
 from pernav.world.cost import tracking_cost
 
 __all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
@@ -128,13 +128,16 @@ class RetimingPlanner(MPCPlannerBase):
             this many metres within the horizon and the candidate stay within it in every row (the gain test
             still applies); ``None`` (default): no waiver. The rows disagree on how far a missed exit takes the
             car, not on whether it is missed.
+        rescue_evidence: in a study, allow rescues in a round only where :meth:`alarm_check` on the round's
+            tau (this driver's own explore drive) finds the rows' alarm raised where the real car left the
+            route and nowhere else (the study runner applies it; the planner alone ignores it).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
                  max_spread: float | None = 2.0, rel_spread: float = 0.0, rescue: float | None = None,
-                 playbacks: int | None = None) -> None:
+                 rescue_evidence: bool = True, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -150,6 +153,7 @@ class RetimingPlanner(MPCPlannerBase):
         if rescue is not None and rescue <= 0:
             raise ValueError(f"rescue must be > 0 metres or None, got {rescue}")
         self.rescue = None if rescue is None else float(rescue)
+        self.rescue_evidence = bool(rescue_evidence)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -180,6 +184,50 @@ class RetimingPlanner(MPCPlannerBase):
         progress = self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype)  # 3 m per route point
         return cost - progress, pos, dist.amax(-1)
 
+    @torch.no_grad()
+    def alarm_check(self, trajectory: TensorDictBase, distance: float | None = None,
+                    decisions_only: bool = True) -> dict[str, float | int]:
+        """How the rescue's alarm fares on a real drive ``[T]`` (with ``"history"``, ``"route_ahead"``,
+        ``"action"`` and the next observations, in the model's action space; e.g. a round's tau).
+
+        At each step where the planner would search (:meth:`searches`; ``decisions_only``) the rows imagine the
+        drive's own next ``horizon`` actions; the step's *alarm level* is the
+        smallest (over the rows) of their largest distance from that step's route, and the step is *real* where
+        the real car left that route by more than ``distance`` (default ``rescue``) metres. Returns the counts
+        of ``alarms`` (level above ``distance``), ``hits`` (alarms that were real), ``false_alarms`` and ``real``
+        steps, the ``threshold``: the smallest distance (at least ``distance``) at which no step that was not
+        real raises an alarm, and ``hits_at_threshold``: the real steps whose level exceeds it.
+
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from pernav.model import DynamicsModel
+        >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+        >>> planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,)))), horizon=3)
+        >>> drive = TensorDict({"history": torch.zeros(6, 5, 21), "route_ahead": torch.zeros(6, 10, 2),
+        ...                     "action": torch.zeros(6, dtype=torch.long),
+        ...                     "next": {"observation": torch.zeros(6, 14)}}, [6])
+        >>> planner.alarm_check(drive, distance=1e6, decisions_only=False)["alarms"]
+        0
+        """
+        distance = self.rescue if distance is None else float(distance)
+        if distance is None:
+            raise ValueError("alarm_check needs a distance (the planner has no rescue distance)")
+        T, H = trajectory.shape[0], self.horizon
+        actions = trajectory["action"].reshape(T).long()
+        seqs = actions.unfold(0, H, 1)[: max(T - H, 0)]  # [T - H, H]: the drive's own next H actions at each step
+        positions = trajectory["next", "observation"][:, [X, Y]].float()
+        steps = [t for t in range(seqs.shape[0]) if not decisions_only or self.searches(trajectory[t])]
+        levels, real = torch.zeros(len(steps)), torch.zeros(len(steps), dtype=torch.bool)
+        for i, t in enumerate(steps):
+            root = trajectory[t]
+            levels[i] = self.costs(root, seqs[t:t + 1])[2][:, 0].min()  # every row's distance exceeds this
+            real[i] = torch.cdist(positions[t:t + H], root["route_ahead"].float()).min(-1).values.max() > distance
+        alarm = levels > distance
+        threshold = max(distance, float(levels[~real].max())) if bool((~real).any()) else distance
+        return {"alarms": int(alarm.sum()), "hits": int((alarm & real).sum()), "false_alarms": int((alarm & ~real).sum()),
+                "real": int(real.sum()), "threshold": round(threshold, 3),
+                "hits_at_threshold": int((levels[real] > threshold).sum())}
+
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
         """``[N]``: how much the rows disagree on each candidate's *effect*, its positions minus explore's
@@ -188,9 +236,8 @@ class RetimingPlanner(MPCPlannerBase):
         effect = pos - pos[:, explore:explore + 1]  # [M, N, H, 2]
         return (effect - effect.mean(0)).norm(dim=-1).mean(0).amax(-1)
 
-    @torch.no_grad()
-    def decide(self, root: TensorDictBase) -> tuple[int, RetimingResult | None]:
-        """The action for one root (unbatched tensordict) and the search behind it (``None``: no choice)."""
+    def candidates(self, root: TensorDictBase) -> tuple[torch.Tensor, int]:
+        """The candidate action sequences ``[N, horizon]`` at ``root`` and the index of explore's plan."""
         future = root["explore_future"].long()
         hist = root["history"]
         last_onehot = hist[-2, STATE_DIM:] if hist.shape[0] > 1 else hist[-1, STATE_DIM:]
@@ -198,7 +245,17 @@ class RetimingPlanner(MPCPlannerBase):
         mask = root["action_mask"][0].bool()
         allowed = mask.reshape(-1, self.playbacks).any(-1).nonzero().squeeze(-1)
         seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay)
-        seqs, blocks = self._actions(seqs)
+        return self._actions(seqs)[0], explore
+
+    def searches(self, root: TensorDictBase) -> bool:
+        """Would :meth:`decide` search at ``root`` (do the candidates differ in their first action)?"""
+        seqs, explore = self.candidates(root)
+        return not bool((seqs[:, 0] == seqs[explore, 0]).all())
+
+    @torch.no_grad()
+    def decide(self, root: TensorDictBase) -> tuple[int, RetimingResult | None]:
+        """The action for one root (unbatched tensordict) and the search behind it (``None``: no choice)."""
+        seqs, explore = self.candidates(root)
         explore_action = int(seqs[explore, 0])
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None

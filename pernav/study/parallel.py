@@ -125,6 +125,7 @@ class EpisodeJob:
     model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
     params: Any = None  # adapted parameters (TensorDict) or None
     policy_name: str = ""  # the study method this episode evaluates
+    planner_options: dict | None = None  # overrides of cfg.planner for this episode (e.g. a round's rescue off)
 
 
 def make_policy(job: EpisodeJob) -> Any:
@@ -143,7 +144,8 @@ def make_policy(job: EpisodeJob) -> Any:
 
     model = DynamicsModel(**job.model["config"])
     model.load_state_dict(job.model["state"])
-    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), job.cfg.planner, job.n_actions)
+    options = {**job.cfg.planner, **(job.planner_options or {})}
+    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), options, job.n_actions)
     planner.params = job.params
     return planner
 

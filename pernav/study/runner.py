@@ -96,6 +96,22 @@ def _collector(cfg: StudyConfig, seed: int) -> Any:
     return explore_module()
 
 
+def _rescue_check(cfg: StudyConfig, learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
+    """Whether and at what distance ``learner``'s planner may rescue in this round (``None``: the planner has no
+    rescue, or needs no evidence). On the round's tau, with the round's parameters, the alarm's distance is
+    raised until it is silent wherever the real car kept to the route; rescues are allowed at that distance if
+    the alarm still sounds where the car left it (:meth:`~pernav.planner.RetimingPlanner.alarm_check`)."""
+    planner = learner.planner
+    if getattr(planner, "rescue", None) is None or not planner.rescue_evidence:
+        return None
+    if learner.n_actions == 21:  # tau is explore's: its actions and history in the 21-action space
+        tau = to_speed_actions(tau).update({"route_ahead": tau["route_ahead"], "explore_future": tau["explore_future"],
+                                            "action_mask": tau["action_mask"].repeat_interleave(3, -1)})
+    planner.params = params
+    counts = planner.alarm_check(tau)
+    return {**counts, "allowed": counts["hits_at_threshold"] > 0}
+
+
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
@@ -280,8 +296,14 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             with _Timer(profile, "adaptation_s"):
                 adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
                            for name, learner in learners.items()}
+            checks = {name: _rescue_check(cfg, learner, adapted[name], tau) for name, learner in learners.items()}
+            for name, check in checks.items():
+                if check is not None:
+                    state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
+            off = {name: {"rescue": c["threshold"] if c["allowed"] else None}  # this round's rescue distance
+                   for name, c in checks.items() if c is not None}
             jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                               *_policy_spec(method, learners, adapted))
+                               *_policy_spec(method, learners, adapted), planner_options=off.get(method))
                     for method in methods if method != "hindsight" for route in routes]
             with _Timer(profile, "evaluation_s"):
                 metrics = executor.map(run_episode_job, jobs, desc=f"{town} {entry.label} episodes")
@@ -295,6 +317,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 planning_before = sum(learner.planner.planning_s for learner in learners.values())
                 for name, learner in learners.items():
                     learner.planner.params = adapted[name]
+                    rescue = learner.planner.rescue if hasattr(learner.planner, "rescue") else None
+                    if name in off:  # the rollouts rescue as this round's evaluation does
+                        learner.planner.rescue = off[name]["rescue"]
                     for k in range(cfg.rollouts):
                         use_mpc = rng.random() < 0.5
                         route = rng.randrange(10)
@@ -302,6 +327,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                         policy = learner.planner if use_mpc else _collector(cfg, seed)
                         traj = episode(cfg, town, entry, route, seed, policy, learner.n_actions)
                         learner.buffers.add(index, traj)  # already in the learner's action space
+                    if name in off:
+                        learner.planner.rescue = rescue
             profile["collection_planning_s"] = profile.get("collection_planning_s", 0.0) + sum(
                 learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)
@@ -329,7 +356,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
+                          **({"rescue_checks": state["rescue_checks"][name]} if name in state.get("rescue_checks", {})
+                             else {})}
                    for name, learner in learners.items()}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
