@@ -341,6 +341,7 @@ def test_alarm_check_counts_alarms_against_the_real_drive_as_a_brute_force_does(
         expected["real"] += real
     threshold = max([2.0] + [lv for lv, r in zip(levels, reals, strict=True) if not r])
     assert counts.pop("threshold") == pytest.approx(threshold, abs=1e-3)
+    assert counts.pop("steps") == T - 3
     assert counts.pop("hits_at_threshold") == sum(lv > threshold for lv, r in zip(levels, reals, strict=True) if r)
     assert counts == expected and counts["alarms"] + counts["real"] > 0  # the drive exercises the check
     assert planner.alarm_check(drive, distance=1e9, decisions_only=False)["alarms"] == 0

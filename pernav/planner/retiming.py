@@ -191,10 +191,10 @@ class RetimingPlanner(MPCPlannerBase):
         ``"action"`` and the next observations, in the model's action space; e.g. a round's tau).
 
         At each step where the planner would search (:meth:`searches`; ``decisions_only``) the rows imagine the
-        drive's own next ``horizon`` actions; the step's *alarm level* is the
-        smallest (over the rows) of their largest distance from that step's route, and the step is *real* where
-        the real car left that route by more than ``distance`` (default ``rescue``) metres. Returns the counts
-        of ``alarms`` (level above ``distance``), ``hits`` (alarms that were real), ``false_alarms`` and ``real``
+        drive's own next ``horizon`` actions; the step's *alarm level* is the smallest (over the rows) of their
+        largest distance from that step's route, and the step is *real* where the real car left that route by
+        more than ``distance`` (default ``rescue``) metres. Returns the counts of checked ``steps``, of
+        ``alarms`` (level above ``distance``), ``hits`` (alarms that were real), ``false_alarms`` and ``real``
         steps, the ``threshold``: the smallest distance (at least ``distance``) at which no step that was not
         real raises an alarm, and ``hits_at_threshold``: the real steps whose level exceeds it.
 
@@ -224,8 +224,8 @@ class RetimingPlanner(MPCPlannerBase):
             real[i] = torch.cdist(positions[t:t + H], root["route_ahead"].float()).min(-1).values.max() > distance
         alarm = levels > distance
         threshold = max(distance, float(levels[~real].max())) if bool((~real).any()) else distance
-        return {"alarms": int(alarm.sum()), "hits": int((alarm & real).sum()), "false_alarms": int((alarm & ~real).sum()),
-                "real": int(real.sum()), "threshold": round(threshold, 3),
+        return {"steps": len(steps), "alarms": int(alarm.sum()), "hits": int((alarm & real).sum()),
+                "false_alarms": int((alarm & ~real).sum()), "real": int(real.sum()), "threshold": round(threshold, 3),
                 "hits_at_threshold": int((levels[real] > threshold).sum())}
 
     @staticmethod
