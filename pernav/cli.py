@@ -125,6 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
                    help="one of the planner's options (pernav.planner.factory.PLANNER_DEFAULTS; VALUE in JSON, e.g. "
                         "max_spread=null); repeatable")
+    p.add_argument("--train-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150); "
+                        "repeatable")
     p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: all six)")
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
@@ -172,6 +175,10 @@ def _study(args: argparse.Namespace) -> None:
         cfg.collect = args.collect
     if args.calibration is not None:
         cfg.calibration = args.calibration
+    try:
+        cfg.train = cfg.train.with_options(args.train_option)
+    except ValueError as exc:
+        raise UsageError(f"--train-option {exc}") from None
     if args.personal_updates is not None:
         cfg.train.personal_updates = args.personal_updates
     if args.adapt_step is not None:

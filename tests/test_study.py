@@ -214,6 +214,20 @@ def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step
     assert exit_.value.code == 2 and "--adapt-step" in capsys.readouterr().err and not (tmp_path / "s").exists()
 
 
+def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_one(tmp_path, capsys):
+    from pernav.trainer.ftml import TrainConfig
+
+    cfg = TrainConfig().with_options(["updates=150", "lr=0.002", "backtrack=null", "hidden=[64, 64]"])
+    assert (cfg.updates, cfg.lr, cfg.backtrack, cfg.hidden) == (150, 0.002, None, [64, 64])
+    assert TrainConfig().updates == 50  # a copy: the defaults are untouched
+    for bad, words in (("updates=1.5", "an int >= 0"), ("updates=null", "an int >= 0"), ("lr=fast", "a number"),
+                       ("hidden=[0]", "positive ints"), ("depth=3", "one of the train options: lr, updates")):
+        assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--train-option", bad]) == 2
+        err = capsys.readouterr().err
+        assert words in err and bad in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "s").exists()
+
+
 def test_an_episode_job_overrides_the_study_planner_options():
     from pernav.model import DynamicsModel
     from pernav.study.parallel import EpisodeJob, make_policy

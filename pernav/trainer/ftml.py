@@ -30,9 +30,10 @@ Example:
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import torch
@@ -77,6 +78,45 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+    def with_options(self, pairs: list[str]) -> TrainConfig:
+        """A copy with ``KEY=VALUE`` strings applied (JSON values of each field's type: an int, a number, null
+        where the default is null or the field is optional, a list of ints for ``hidden``); ``ValueError``
+        naming the bad pair and what is allowed.
+
+        >>> TrainConfig().with_options(["updates=150", "backtrack=null"]).updates
+        150
+        """
+        out = copy.deepcopy(self)
+        names = [f.name for f in fields(self)]
+        for pair in pairs:
+            key, sep, raw = pair.partition("=")
+            if not sep or key not in names:
+                raise ValueError(f"{pair!r}: need KEY=VALUE with KEY one of the train options: {', '.join(names)}")
+            try:
+                value = json.loads(raw)
+            except json.JSONDecodeError:
+                value = raw
+            default = getattr(TrainConfig(), key)
+            if key == "hidden":
+                ok = isinstance(value, list) and value and all(isinstance(v, int) and v > 0 for v in value)
+            elif isinstance(default, bool):
+                ok = isinstance(value, bool)
+            elif value is None:
+                ok = key in _OPTIONAL
+            elif isinstance(default, int):
+                ok = isinstance(value, int) and not isinstance(value, bool) and value >= 0
+            else:
+                ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            if not ok:
+                kind = ("a list of positive ints" if key == "hidden" else "true or false" if isinstance(default, bool)
+                        else "an int >= 0" if isinstance(default, int) else "a number")
+                raise ValueError(f"{pair!r}: {key} must be {kind}{' or null' if key in _OPTIONAL else ''}")
+            setattr(out, key, float(value) if isinstance(default, float) and value is not None else value)
+        return out
+
+
+_OPTIONAL = ("max_grad_norm", "backtrack")  # the train options that may be null (off)
 
 
 class FTMLTrainer:
