@@ -30,11 +30,47 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
-from pernav.model.dynamics import GX, GY, DynamicsModel, X, Y
+from pernav.env.planning import ROUTE_SPACING
+from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
+from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 
-__all__ = ["ImaginedNavigationEnv", "make_world_model"]
+__all__ = ["ImaginedNavigationEnv", "make_world_model", "route_goal"]
+
+ROUTE_REACH = 8  # route points (3 m each) the car may advance in one imagined step; 2 back (no jumps)
+
+
+def route_goal(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``state`` ``[..., 14]`` with its goal set as the env sets it, from the known route ``[P, 2]`` (points every
+    ``ROUTE_SPACING`` m): the route point ``max(speed * GOAL_LOOKAHEAD_S, WAYPOINT_SPACING)`` beyond the car's
+    projection on the route, searched near the previous projection ``index`` ``[...]``; and the new index.
+
+    >>> route = torch.stack([torch.arange(10.0) * 3, torch.zeros(10)], -1)  # a straight road along x
+    >>> state = torch.zeros(14); state[0], state[3] = 6.2, 6.0              # at x = 6.2 m, 6 m/s
+    >>> s, i = route_goal(state, route, torch.tensor(1))
+    >>> int(i), [round(float(v), 1) for v in s[[9, 10]]]
+    (2, [12.2, 0.0])
+    """
+    P = route.shape[0]
+    d = torch.cdist(state[..., [X, Y]].reshape(-1, 2), route).reshape(*state.shape[:-1], P)
+    k = torch.arange(P)
+    near = (k >= index.unsqueeze(-1) - 2) & (k <= index.unsqueeze(-1) + ROUTE_REACH)
+    index = torch.where(near, d, torch.full_like(d, float("inf"))).argmin(-1)
+    # between the points: project on the route's local direction (the env projects on 2-m waypoints)
+    tangent = route[(index + 1).clamp(max=P - 1)] - route[(index - 1).clamp(min=0)]
+    tangent = tangent / tangent.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+    along = ((state[..., [X, Y]] - route[index]) * tangent).sum(-1) / ROUTE_SPACING
+    speed = state[..., [VX, VY]].norm(dim=-1)
+    ahead = index.to(state.dtype) + along.clamp(-1.0, 1.0) \
+        + torch.clamp(speed * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING) / ROUTE_SPACING
+    ahead = ahead.clamp(min=0.0, max=P - 1)
+    lo = ahead.floor().long().clamp(max=P - 2)
+    w = (ahead - lo.to(state.dtype)).unsqueeze(-1)
+    goal = route[lo] * (1 - w) + route[lo + 1] * w
+    state = state.clone()
+    state[..., GX], state[..., GY] = goal[..., 0], goal[..., 1]
+    return state, index
 
 
 class _Transition(nn.Module):
@@ -85,11 +121,14 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         self.reward_spec = Unbounded((1,))
 
     @torch.no_grad()
-    def imagine(self, root: TensorDictBase, sequences: torch.Tensor,
-                params: list[TensorDictBase | None] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list[TensorDictBase | None] | None = None,
+                route_goals: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """Imagined positions and goals of action ``sequences`` ``[N, H]`` from one real ``root`` (with
         ``"history"``): ``([M, N, H, 2], [M, N, H, 2])``, one row ``M`` per parameter set in ``params``
-        (an ensemble, adapted or not; ``None``: the model's own parameters).
+        (an ensemble, adapted or not; ``None``: the model's own parameters). With ``route_goals`` every imagined
+        state's goal is the one the env would set from the known route (``root["route_ahead"]``,
+        :func:`route_goal`), not the model's guess: the navigation knows its map; the model learns the car and
+        the driver.
 
         >>> import torch
         >>> from tensordict import TensorDict
@@ -99,28 +138,31 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         torch.Size([1, 3, 4, 2])
         """
         N, H = sequences.shape
-        if params and len(params) > 1 and all(p is not None for p in params):  # an ensemble: all members at once
-            stacked = torch.stack(list(params))
-            hist = root["history"].float().expand(len(params), N, *root["history"].shape).clone()
-            pos, goal = [], []
-            for h in range(H):
-                state = self.dynamics.ensemble_forward(hist, sequences[:, h], stacked)
-                hist = self.dynamics.next_window(hist, sequences[:, h].expand(hist.shape[:2]), state)
-                pos.append(state[..., [X, Y]])
-                goal.append(state[..., [GX, GY]])
-            return torch.stack(pos, 2), torch.stack(goal, 2)
+        ensemble = bool(params) and len(params) > 1 and all(p is not None for p in params)
+        members = [None] if ensemble or not params else list(params)
+        route = root["route_ahead"].float() if route_goals else None
+        stacked = torch.stack(list(params)) if ensemble else None
         positions, goals = [], []
-        for member in params if params else [None]:
-            hist = root["history"].float().expand(N, *root["history"].shape).clone()
+        for member in members:  # an ensemble runs all members at once: one pass
+            lead = (len(params), N) if ensemble else (N,)
+            hist = root["history"].float().expand(*lead, *root["history"].shape).clone()
+            if route is not None:  # the car's projection on the route now: the nearest point
+                index = torch.cdist(root["history"][-1, [X, Y]].float().unsqueeze(0), route).argmin().expand(lead)
             pos, goal = [], []
             with using(self.dynamics, member):
                 for h in range(H):
-                    state = self.dynamics(hist, sequences[:, h])
-                    hist = self.dynamics.next_window(hist, sequences[:, h], state)
-                    pos.append(state[:, [X, Y]])
-                    goal.append(state[:, [GX, GY]])
-            positions.append(torch.stack(pos, 1))
-            goals.append(torch.stack(goal, 1))
+                    action = sequences[:, h].expand(lead)
+                    state = (self.dynamics.ensemble_forward(hist, sequences[:, h], stacked) if ensemble
+                             else self.dynamics(hist, action))
+                    if route is not None:
+                        state, index = route_goal(state, route, index)
+                    hist = self.dynamics.next_window(hist, action, state)
+                    pos.append(state[..., [X, Y]])
+                    goal.append(state[..., [GX, GY]])
+            positions.append(torch.stack(pos, -2))
+            goals.append(torch.stack(goal, -2))
+        if ensemble:
+            return positions[0], goals[0]
         return torch.stack(positions), torch.stack(goals)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:

@@ -128,6 +128,8 @@ class RetimingPlanner(MPCPlannerBase):
             this many metres within the horizon and the candidate stay within it in every row (the gain test
             still applies); ``None`` (default): no waiver. The rows disagree on how far a missed exit takes the
             car, not on whether it is missed.
+        route_goals: imagine each state's goal from the known route (as the env sets it) rather than the
+            model's guess (:meth:`~pernav.model.world_model.ImaginedNavigationEnv.imagine`; learned models only).
         rescue_evidence: in a study, allow rescues in a round only where :meth:`alarm_check` on the round's
             tau (this driver's own explore drive) finds the rows' alarm raised where the real car left the
             route and nowhere else (the study runner applies it; the planner alone ignores it).
@@ -137,7 +139,7 @@ class RetimingPlanner(MPCPlannerBase):
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
                  max_spread: float | None = 2.0, rel_spread: float = 0.0, rescue: float | None = None,
-                 rescue_evidence: bool = True, playbacks: int | None = None) -> None:
+                 rescue_evidence: bool = True, route_goals: bool = False, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -154,6 +156,7 @@ class RetimingPlanner(MPCPlannerBase):
             raise ValueError(f"rescue must be > 0 metres or None, got {rescue}")
         self.rescue = None if rescue is None else float(rescue)
         self.rescue_evidence = bool(rescue_evidence)
+        self.route_goals = bool(route_goals)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -173,6 +176,8 @@ class RetimingPlanner(MPCPlannerBase):
         ``[M, N, H, 2]`` and ``[M, N]`` the largest distance (m) from the planned route over the horizon."""
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
+        if self.route_goals:
+            kwargs["route_goals"] = True
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
         start_goal = root["history"][-1, [GX, GY]].float()
         prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
