@@ -89,3 +89,12 @@ def test_step_size_check_scores_each_rule_by_the_members_mean_held_out_loss(tmp_
     out = subprocess.run([sys.executable, str(ROOT / "recipes/step_size_check.py"), "--summarize", str(tmp_path)],
                          capture_output=True, text=True, cwd=ROOT)
     assert out.returncode == 2 and "no rows.json" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_horizon_error_refuses_a_missing_study_and_bad_users_in_one_line(tmp_path):
+    for args, words in ((["--study", str(tmp_path / "none")], "no Town1 checkpoint"),
+                        (["--study", str(tmp_path), "--users", "user9"], "users must be among user1")):
+        out = subprocess.run([sys.executable, str(ROOT / "recipes/horizon_error.py"), *args, "--json",
+                              str(tmp_path / "h.json")], capture_output=True, text=True, cwd=ROOT)
+        assert out.returncode == 2 and words in out.stderr and "Traceback" not in out.stderr
+        assert not (tmp_path / "h.json").exists()
