@@ -411,8 +411,11 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
     params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
               for index, entry in online}
+    # rescues need a round-time check on tau (_rescue_check), which hindsight, trained after the last round, has not
+    evidence = hind.planner.rescue_evidence if getattr(hind.planner, "rescue", None) is not None else False
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
+                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight",
+                       planner_options={"rescue": None} if evidence else None)
             for index, entry in online for route in routes]
     with _Timer(state["profile"], "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
