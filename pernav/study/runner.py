@@ -96,7 +96,7 @@ def _collector(cfg: StudyConfig, seed: int) -> Any:
     return explore_module()
 
 
-def _rescue_check(cfg: StudyConfig, learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
+def _rescue_check(learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
     """Whether and at what distance ``learner``'s planner may rescue in this round (``None``: the planner has no
     rescue, or needs no evidence). On the round's tau, with the round's parameters, the alarm's distance is
     raised until it is silent wherever the real car kept to the route; rescues are allowed at that distance if
@@ -296,7 +296,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             with _Timer(profile, "adaptation_s"):
                 adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
                            for name, learner in learners.items()}
-            checks = {name: _rescue_check(cfg, learner, adapted[name], tau) for name, learner in learners.items()}
+            with _Timer(profile, "adaptation_s"):
+                checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
             for name, check in checks.items():
                 if check is not None:
                     state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
@@ -317,7 +318,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 planning_before = sum(learner.planner.planning_s for learner in learners.values())
                 for name, learner in learners.items():
                     learner.planner.params = adapted[name]
-                    rescue = learner.planner.rescue if hasattr(learner.planner, "rescue") else None
+                    rescue = getattr(learner.planner, "rescue", None)
                     if name in off:  # the rollouts rescue as this round's evaluation does
                         learner.planner.rescue = off[name]["rescue"]
                     for k in range(cfg.rollouts):
