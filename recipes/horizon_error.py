@@ -4,7 +4,8 @@ Drives explore with named users on a town's first routes and, at the steps where
 search, lets adapt's final meta ensemble (``--study DIR``, its checkpoint) imagine the drive's own next 12
 actions, twice: with the goals the model predicts (the paper's model) and with the goals the env would set
 from the known route (``route_goals``, :func:`pernav.model.world_model.route_goal`). It reports the median
-position error of the members' mean after 5 and 12 s, and the planner's miss alarm
+position error of the members' mean after 5 and 12 s (at 12 s also split into the error along the route, in
+route progress, and the imagined car's distance across it), and the planner's miss alarm
 (``RetimingPlanner.alarm_check``: every member more than ``--distance`` m off the route where the real car
 was or was not).
 
@@ -21,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from pernav.env.planning import ROUTE_SPACING
 from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import DynamicsModel, X, Y
@@ -36,7 +38,7 @@ def horizon_error(planner: RetimingPlanner, drives: list, every: int = 3) -> dic
     """The planner's alarm counts over ``drives`` and the median position error (m) of the rows' mean at 5 and
     12 s (``horizon`` 12) over every ``every``-th searched step."""
     out = {"steps": 0, "alarms": 0, "hits": 0, "false_alarms": 0, "real": 0}
-    err5, err12 = [], []
+    err5, err12, along, across = [], [], [], []
     H = planner.horizon
     for traj in drives:
         counts = planner.alarm_check(traj)
@@ -46,11 +48,18 @@ def horizon_error(planner: RetimingPlanner, drives: list, every: int = 3) -> dic
         for t in range(0, traj.shape[0] - H, every):
             if planner.searches(traj[t]):
                 _, imagined, _ = planner.costs(traj[t], traj["action"][t:t + H].reshape(1, H).long())  # [M, 1, H, 2]
-                e = (imagined[:, 0].mean(0) - pos[t:t + H]).norm(dim=-1)
+                mean = imagined[:, 0].mean(0)
+                e = (mean - pos[t:t + H]).norm(dim=-1)
                 err5.append(float(e[4]))
                 err12.append(float(e[H - 1]))
+                # the 12-s error split: along the route (progress) and across it (distance from the route)
+                d = torch.cdist(torch.stack([mean[H - 1], pos[t + H - 1]]), traj[t]["route_ahead"].float())
+                along.append(ROUTE_SPACING * abs(int(d[0].argmin()) - int(d[1].argmin())))
+                across.append(float(d[0].min()))
     return {**out, "error_5s_m": round(statistics.median(err5), 2) if err5 else None,
-            "error_12s_m": round(statistics.median(err12), 2) if err12 else None, "positions": len(err5)}
+            "error_12s_m": round(statistics.median(err12), 2) if err12 else None,
+            "along_12s_m": round(statistics.median(along), 2) if along else None,
+            "across_12s_m": round(statistics.median(across), 2) if across else None, "positions": len(err5)}
 
 
 def main() -> None:
