@@ -77,7 +77,7 @@ def scatter(episodes: list[dict], path: str) -> None:
 
 def _same_defaults(recorded: dict | None, current: dict) -> bool:
     """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written (``rescue``,
-    ``rescue_evidence``) is off by default, so a file without it drove as the current defaults do."""
+    ``rescue_evidence``, ``route_goals``) is off by default, so a file without it drove as the current defaults do."""
     return recorded is not None and {**current, **recorded} == current
 
 

@@ -55,6 +55,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
+from pernav.env.planning import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
 from pernav.world.cost import tracking_cost
 
@@ -186,7 +187,7 @@ class RetimingPlanner(MPCPlannerBase):
         d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
         dist, nearest = d.min(-1)
         cost = cost + self.route_weight * (dist ** 2).sum(-1)
-        progress = self.progress_weight * 3.0 * nearest[..., -1].to(cost.dtype)  # 3 m per route point
+        progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
         return cost - progress, pos, dist.amax(-1)
 
     @torch.no_grad()

@@ -296,7 +296,6 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             with _Timer(profile, "adaptation_s"):
                 adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
                            for name, learner in learners.items()}
-            with _Timer(profile, "adaptation_s"):
                 checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
             for name, check in checks.items():
                 if check is not None:
