@@ -24,13 +24,38 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.modules import MLP
 
+from pernav.env.planning import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["STATE_DIM", "DynamicsModel", "apply_delta", "ego_delta", "wrap_angle"]
+__all__ = ["ROAD_MAX", "STATE_DIM", "DynamicsModel", "apply_delta", "ego_delta", "road_of", "road_points",
+           "wrap_angle"]
 
 STATE_DIM = 14
 X, Y, VX, VY, HEADING, GX, GY = 0, 1, 3, 4, 6, 9, 10
 PAIRS = ((X, Y), (VX, VY), (GX, GY))  # planar vectors rotated into the car's frame
+ROAD_STRIDE = 2  # route points (ROUTE_SPACING = 3 m apart) from one road point to the next: 6 m
+ROAD_MAX = 16  # road points stored with the data (90 m ahead); a model reads the first ``road`` of them
+HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in the env's ``route_ahead``
+
+
+def road_points(route: torch.Tensor, n: int = ROAD_MAX, index: torch.Tensor | None = None) -> torch.Tensor:
+    """``[..., n, 2]``: ``n`` points of the planned route every ``ROAD_STRIDE * ROUTE_SPACING`` m from the car's
+    projection on it, the road a :class:`DynamicsModel` with ``road=n`` reads. ``route`` is the env's
+    ``route_ahead`` (``[..., P, 2]``, the car's projection at point ``HERE``) or, with ``index`` (``[...]``, the
+    projection of each imagined car), one route ``[P, 2]`` shared by a batch. Points past the route's end repeat it.
+
+    >>> route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # straight, car at x = 0
+    >>> road_points(route, 3)[:, 0].tolist()
+    [0.0, 6.0, 12.0]
+    >>> road_points(route, 2, index=torch.tensor([5, 94]))[:, :, 0].tolist()
+    [[0.0, 6.0], [267.0, 270.0]]
+    """
+    P = route.shape[-2]
+    if index is None:
+        return route[..., (HERE + ROAD_STRIDE * torch.arange(n)).clamp(max=P - 1), :]
+    if route.ndim != 2:
+        raise ValueError(f"road_points with an index needs one route [P, 2], got {tuple(route.shape)}")
+    return route[(index.unsqueeze(-1) + ROAD_STRIDE * torch.arange(n)).clamp(max=P - 1)]
 
 
 def wrap_angle(a: torch.Tensor) -> torch.Tensor:
@@ -38,12 +63,24 @@ def wrap_angle(a: torch.Tensor) -> torch.Tensor:
     return torch.remainder(a + torch.pi, 2 * torch.pi) - torch.pi
 
 
+def road_of(data: TensorDictBase) -> torch.Tensor | None:
+    """The road points of transitions: stored ``"road"``, else :func:`road_points` of the env's
+    ``"route_ahead"`` (a raw drive), else ``None`` (data without a route, for models that do not read it)."""
+    if "road" in data.keys():
+        return data["road"]
+    return road_points(data["route_ahead"]) if "route_ahead" in data.keys() else None
+
+
+def _rotate(points: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
+    """Planar vectors ``[..., n, 2]`` rotated by ``angle`` ``[...]``."""
+    c, s = torch.cos(angle)[..., None, None], torch.sin(angle)[..., None, None]
+    px, py = points[..., 0:1], points[..., 1:2]
+    return torch.cat([c * px - s * py, s * px + c * py], dim=-1)
+
+
 def _rotate_pairs(state: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
     """``[..., 3, 2]``: the (x, y), (vx, vy) and (goal_x, goal_y) pairs of ``state`` rotated by ``angle``."""
-    pairs = torch.stack([state[..., X:Y + 1], state[..., VX:VY + 1], state[..., GX:GY + 1]], dim=-2)
-    c, s = torch.cos(angle)[..., None, None], torch.sin(angle)[..., None, None]
-    px, py = pairs[..., 0:1], pairs[..., 1:2]
-    return torch.cat([c * px - s * py, s * px + c * py], dim=-1)
+    return _rotate(torch.stack([state[..., X:Y + 1], state[..., VX:VY + 1], state[..., GX:GY + 1]], dim=-2), angle)
 
 
 def _assemble(pairs: torch.Tensor, state: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
@@ -85,6 +122,10 @@ class DynamicsModel(nn.Module):
         n_actions: 7, or 21 with playback speed.
         K: history length (rows of the window).
         hidden: hidden layer widths ([256, 256, 256] in the paper).
+        road: points of the planned route ahead it also reads (:func:`road_points`, 6 m apart, at most
+            ``ROAD_MAX``; 0: none, the paper's model). Then every prediction needs ``road`` ``[..., road, 2]``
+            (world frame; expressed in the car's frame like the goal): where the road turns, which the driver's
+            next second depends on and the state alone does not tell.
 
     The window convention is :class:`~pernav.transforms.HistoryWindow`'s: the newest row holds the current
     state and a zero action; :meth:`forward` writes ``action`` there. :meth:`next_window` shifts a window
@@ -97,14 +138,16 @@ class DynamicsModel(nn.Module):
     """
 
     def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
-                 hidden: Sequence[int] = (256, 256, 256)) -> None:
+                 hidden: Sequence[int] = (256, 256, 256), road: int = 0) -> None:
         super().__init__()
         if state_dim != STATE_DIM:
             raise ValueError(f"state_dim must be {STATE_DIM} (the paper's state), got {state_dim}")
-        self.state_dim, self.n_actions, self.K = state_dim, int(n_actions), int(K)
+        if not 0 <= int(road) <= ROAD_MAX:
+            raise ValueError(f"road must be between 0 and {ROAD_MAX} (route points the model reads), got {road}")
+        self.state_dim, self.n_actions, self.K, self.road = state_dim, int(n_actions), int(K), int(road)
         self.hidden = tuple(int(h) for h in hidden)
         self.window = HistoryWindow(K=self.K, n_actions=self.n_actions)
-        self.n_features = self.K * (state_dim + 1 + self.n_actions)
+        self.n_features = self.K * (state_dim + 1 + self.n_actions) + 2 * self.road
         self.net = MLP(in_features=self.n_features, out_features=state_dim, num_cells=list(self.hidden),
                        activation_class=nn.ReLU)
         self.register_buffer("in_mean", torch.zeros(self.n_features))
@@ -119,10 +162,11 @@ class DynamicsModel(nn.Module):
         newest = torch.cat([history[..., -1, : self.state_dim], one_hot], dim=-1).unsqueeze(-2)
         return torch.cat([history[..., :-1, :], newest], dim=-2)
 
-    def features(self, window: torch.Tensor) -> torch.Tensor:
+    def features(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """Flat egocentric features of a window, ``[..., n_features]``: per row, position, velocity and goal
         relative to the newest state's position and rotated by its heading, sin/cos of the heading
-        difference, the other state entries, and the action."""
+        difference, the other state entries, and the action; then (a model with ``road``) the road points
+        in the same frame."""
         states, actions = window[..., : self.state_dim], window[..., self.state_dim:]
         now = states[..., -1:, :]
         theta = now[..., HEADING]
@@ -132,25 +176,33 @@ class DynamicsModel(nn.Module):
         dtheta = states[..., HEADING] - theta
         feats = torch.cat([pairs.flatten(-2), states[..., 2:3], states[..., 5:6], torch.sin(dtheta).unsqueeze(-1),
                            torch.cos(dtheta).unsqueeze(-1), states[..., 7:9], states[..., 11:], actions], dim=-1)
-        return feats.flatten(-2)
+        if not self.road:
+            return feats.flatten(-2)
+        if road is None or road.shape[-2] < self.road:
+            raise ValueError(f"this model reads {self.road} road points ahead: pass road [..., >= {self.road}, 2] "
+                             f"(road_points of the route), got {None if road is None else tuple(road.shape)}")
+        ahead = _rotate(road[..., : self.road, :] - now[..., X:Y + 1], -theta[..., 0])
+        return torch.cat([feats.flatten(-2), ahead.expand(*feats.shape[:-2], -1, -1).flatten(-2)], dim=-1)
 
     # ----- prediction ----------------------------------------------------------------------------
-    def normalized_delta(self, window: torch.Tensor) -> torch.Tensor:
+    def normalized_delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """The MLP's output: the normalized egocentric next-state difference for a window with action."""
-        return self.net((self.features(window) - self.in_mean) / self.in_std)
+        return self.net((self.features(window, road) - self.in_mean) / self.in_std)
 
-    def delta(self, window: torch.Tensor) -> torch.Tensor:
-        return self.normalized_delta(window) * self.out_std + self.out_mean
+    def delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
+        return self.normalized_delta(window, road) * self.out_std + self.out_mean
 
     def normalize_delta(self, delta: torch.Tensor) -> torch.Tensor:
         return (delta - self.out_mean) / self.out_std
 
-    def forward(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """Next state ``[..., 14]`` after taking ``action`` with window ``history``."""
+    def forward(self, history: torch.Tensor, action: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
+        """Next state ``[..., 14]`` after taking ``action`` with window ``history`` (and ``road``, a model
+        with ``road``)."""
         window = self.with_action(history, action)
-        return apply_delta(history[..., -1, : self.state_dim], self.delta(window))
+        return apply_delta(history[..., -1, : self.state_dim], self.delta(window, road))
 
-    def ensemble_forward(self, history: torch.Tensor, action: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
+    def ensemble_forward(self, history: torch.Tensor, action: torch.Tensor, params: TensorDictBase,
+                         road: torch.Tensor | None = None) -> torch.Tensor:
         """:meth:`forward` of ``E`` members at once: ``history`` ``[E, N, K, W]``, ``action`` ``[N]`` or
         ``[E, N]``, ``params`` the members' parameters stacked (``torch.stack`` of ``TensorDict.from_module``
         layouts, batch ``[E]``); returns ``[E, N, 14]``, equal to running each member in turn. The window
@@ -164,16 +216,17 @@ class DynamicsModel(nn.Module):
         torch.Size([2, 3, 14])
         """
         window = self.with_action(history, action.expand(history.shape[:-2]))
-        delta = self.ensemble_normalized_delta(window, params) * params["out_std"].unsqueeze(1) \
+        delta = self.ensemble_normalized_delta(window, params, road) * params["out_std"].unsqueeze(1) \
             + params["out_mean"].unsqueeze(1)
         return apply_delta(history[..., -1, : self.state_dim], delta)
 
-    def ensemble_normalized_delta(self, window: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
+    def ensemble_normalized_delta(self, window: torch.Tensor, params: TensorDictBase,
+                                  road: torch.Tensor | None = None) -> torch.Tensor:
         """:meth:`normalized_delta` of ``E`` members at once: ``window`` ``[E, N, K, W]`` (with actions),
         ``params`` stacked as in :meth:`ensemble_forward`; ``[E, N, 14]``. Differentiable in ``params``
         (how :class:`~pernav.trainer.ensemble.EnsembleTrainer` trains all members in one pass)."""
         E = params.shape[0]
-        x = (self.features(window) - params["in_mean"].unsqueeze(1)) / params["in_std"].unsqueeze(1)  # [E, N, F]
+        x = (self.features(window, road) - params["in_mean"].unsqueeze(1)) / params["in_std"].unsqueeze(1)  # [E, N, F]
         for name, layer in self.net.named_children():
             if isinstance(layer, nn.Linear):
                 weight, bias = params["net", name, "weight"], params["net", name, "bias"]
@@ -187,9 +240,10 @@ class DynamicsModel(nn.Module):
         return self.window.next_window(history, action, next_state, batch_dims=history.ndim - 2)
 
     @torch.no_grad()
-    def fit_normalization(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor) -> None:
-        """Set the input/output statistics from data (``[N, K, D]``, ``[N]``, ``[N, 14]``)."""
-        feats = self.features(self.with_action(history, action))
+    def fit_normalization(self, history: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor,
+                          road: torch.Tensor | None = None) -> None:
+        """Set the input/output statistics from data (``[N, K, D]``, ``[N]``, ``[N, 14]``; ``[N, R, 2]``)."""
+        feats = self.features(self.with_action(history, action), road)
         delta = ego_delta(history[..., -1, : self.state_dim], next_state)
         self.in_mean.copy_(feats.mean(0))
         self.in_std.copy_(_safe_std(feats))
@@ -198,4 +252,5 @@ class DynamicsModel(nn.Module):
 
     def config(self) -> dict:
         """Constructor arguments (saved with checkpoints)."""
-        return {"state_dim": self.state_dim, "n_actions": self.n_actions, "K": self.K, "hidden": list(self.hidden)}
+        return {"state_dim": self.state_dim, "n_actions": self.n_actions, "K": self.K, "hidden": list(self.hidden),
+                "road": self.road}

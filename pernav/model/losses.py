@@ -3,7 +3,7 @@ parameters (any :class:`~tensordict.TensorDict` of the model's parameters, e.g. 
 
 A batch is a tensordict of shape ``[B, L]`` of consecutive transitions of one trajectory each (what
 :class:`~pernav.trainer.buffers.RoundBuffers` samples), with ``"history"``, ``"action"``, ``"observation"``
-and ``("next", "observation")``.
+and ``("next", "observation")``, and for a model that reads the road ``"road"`` (or the env's ``"route_ahead"``).
 
 Example:
     >>> import torch
@@ -25,7 +25,7 @@ from contextlib import nullcontext
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.dynamics import DynamicsModel, apply_delta, ego_delta
+from pernav.model.dynamics import DynamicsModel, apply_delta, ego_delta, road_of
 
 __all__ = ["multistep_loss", "single_step_loss", "using"]
 
@@ -47,6 +47,7 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
     actions = batch["action"]
     states = batch["observation"]
     next_states = batch["next", "observation"]
+    road = road_of(batch) if model.road else None  # the true road at every step (it is the map, not imagined)
     S = model.state_dim
     if ensemble is None:
         mean, std = model.out_mean, model.out_std
@@ -60,7 +61,9 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
     for step in range(steps):
         action = actions[:, step].expand(history.shape[:-2])
         window = model.with_action(history, action)
-        pred = model.normalized_delta(window) if ensemble is None else model.ensemble_normalized_delta(window, ensemble)
+        step_road = None if road is None else road[:, step]
+        pred = (model.normalized_delta(window, step_road) if ensemble is None
+                else model.ensemble_normalized_delta(window, ensemble, step_road))
         # the true difference, in the frame of the true previous state (Eq. 4: compare differences)
         target = (ego_delta(states[:, step], next_states[:, step]) - mean) / std
         err = ((pred - target) ** 2).sum(-1)  # [B] or [E, B]

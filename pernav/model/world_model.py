@@ -31,7 +31,7 @@ from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
 from pernav.env.planning import ROUTE_SPACING
-from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y
+from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y, road_points
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
@@ -53,10 +53,10 @@ def route_goal(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) ->
     (2, [12.2, 0.0])
     """
     P = route.shape[0]
-    d = torch.cdist(state[..., [X, Y]].reshape(-1, 2), route).reshape(*state.shape[:-1], P)
-    k = torch.arange(P)
-    near = (k >= index.unsqueeze(-1) - 2) & (k <= index.unsqueeze(-1) + ROUTE_REACH)
-    index = torch.where(near, d, torch.full_like(d, float("inf"))).argmin(-1)
+    # the nearest of the points near the previous projection (only those: a step's distances cost 11, not P)
+    near = (index.unsqueeze(-1) + torch.arange(-2, ROUTE_REACH + 1)).clamp(0, P - 1)  # ascending: ties go low
+    d = (route[near] - state[..., None, [X, Y]]).norm(dim=-1)
+    index = near.gather(-1, d.argmin(-1, keepdim=True)).squeeze(-1)
     # between the points: project on the route's local direction (the env projects on 2-m waypoints)
     tangent = route[(index + 1).clamp(max=P - 1)] - route[(index - 1).clamp(min=0)]
     tangent = tangent / tangent.norm(dim=-1, keepdim=True).clamp(min=1e-6)
@@ -128,7 +128,8 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         (an ensemble, adapted or not; ``None``: the model's own parameters). With ``route_goals`` every imagined
         state's goal is the one the env would set from the known route (``root["route_ahead"]``,
         :func:`route_goal`), not the model's guess: the navigation knows its map; the model learns the car and
-        the driver.
+        the driver. A model that reads the road (``DynamicsModel(road=n)``) gets, at every imagined step, the
+        route points ahead of the imagined car's projection on the route (:func:`road_points`).
 
         >>> import torch
         >>> from tensordict import TensorDict
@@ -140,7 +141,8 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         N, H = sequences.shape
         ensemble = bool(params) and len(params) > 1 and all(p is not None for p in params)
         members = [None] if ensemble or not params else list(params)
-        route = root["route_ahead"].float() if route_goals else None
+        road = self.dynamics.road  # a model that reads the road gets it, like the goals, from the route
+        route = root["route_ahead"].float() if route_goals or road else None
         stacked = torch.stack(list(params)) if ensemble else None
         positions, goals = [], []
         for member in members:  # an ensemble runs all members at once: one pass
@@ -152,10 +154,12 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
             with using(self.dynamics, member):
                 for h in range(H):
                     action = sequences[:, h].expand(lead)
-                    state = (self.dynamics.ensemble_forward(hist, sequences[:, h], stacked) if ensemble
-                             else self.dynamics(hist, action))
+                    ahead = road_points(route, road, index) if road else None
+                    state = (self.dynamics.ensemble_forward(hist, sequences[:, h], stacked, ahead) if ensemble
+                             else self.dynamics(hist, action, ahead))
                     if route is not None:
-                        state, index = route_goal(state, route, index)
+                        on_route, index = route_goal(state, route, index)
+                        state = on_route if route_goals else state
                     hist = self.dynamics.next_window(hist, action, state)
                     pos.append(state[..., [X, Y]])
                     goal.append(state[..., [GX, GY]])

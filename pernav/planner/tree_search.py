@@ -103,6 +103,8 @@ class TreeSearchPlanner(MPCPlannerBase):
         # uses the first member (the paper plans with one model)
         self.params: list[TensorDictBase] | TensorDictBase | None = None
         self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
+        if self.model is not None and self.model.road:  # it reads the road ahead of every imagined car
+            self.in_keys.append("route_ahead")
         self.last: list[PlanResult] = []
         self.nonfinite = 0  # decisions where some imagined cost was NaN/Inf
         self.planning_s = 0.0  # wall time spent planning (profiling)
@@ -228,7 +230,9 @@ class TreeSearchPlanner(MPCPlannerBase):
         with using(self.model, params) if self.model is not None else nullcontext():
             for i in range(flat.shape[0]):
                 row = flat[i]
-                if self.model is None:
+                # the true simulator, or a model that reads the road (the env's imagine tracks each imagined
+                # car's road; every sequence rolled out whole, as flat_search does)
+                if self.model is None or self.model.road:
                     result = self.imagined_search(row, row["plan_goals"].float(), row["explore_plan"].long(),
                                                   row["action_mask"].bool())
                     self.last.append(result)

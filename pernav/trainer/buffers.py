@@ -30,9 +30,12 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 
+from pernav.model.dynamics import road_of
+
 __all__ = ["KEYS", "RoundBuffers"]
 
-#: The entries of a transition that the model needs (everything else is dropped when stored).
+#: The entries of a transition that the model needs (everything else is dropped when stored); a trajectory with
+#: the env's ``"route_ahead"`` also keeps ``"road"``, its first ``ROAD_MAX`` road points (:func:`road_of`).
 KEYS = ("observation", "action", "history", ("next", "observation"))
 
 
@@ -71,6 +74,9 @@ class RoundBuffers:
         if trajectory.ndim != 1 or trajectory.shape[0] == 0:
             raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
         data = trajectory.select(*KEYS).clone()
+        road = road_of(trajectory)  # a drive's route_ahead, or stored data's road (a user's drives for fine-tuning)
+        if road is not None:
+            data["road"] = road.clone()
         data["action"] = data["action"].long().reshape(data.shape)
         T = data.shape[0]
         data.set("round", torch.full((T,), round_, dtype=torch.long))

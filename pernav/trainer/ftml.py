@@ -40,7 +40,7 @@ import torch
 from tensordict import TensorDictBase
 
 from pernav.model.adapt import adapt, trajectory_windows
-from pernav.model.dynamics import DynamicsModel
+from pernav.model.dynamics import ROAD_MAX, DynamicsModel, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
 
@@ -63,6 +63,9 @@ class TrainConfig:
     warm_updates: int = 300  # plain updates of the offline warm start (Eq. 1)
     hidden: list[int] = field(default_factory=lambda: [256, 256, 256])
     K: int = 5  # history window (steps) the model reads
+    # route points ahead (6 m apart) the model also reads, at most ROAD_MAX (16); 0: none, the paper's model.
+    # The driver's next second depends on where the road turns, which the state alone does not tell
+    road: int = 0
     ensemble: int = 1  # dynamics models trained side by side (the planner's uncertainty)
     # 0: adapt with U, one gradient step on tau (the paper). n > 0: adapt by n maximum-likelihood updates (fresh
     # Adam, lr) from the meta parameters on the round user's own drives, tau and calibration (EnsembleTrainer.fine_tuned)
@@ -100,6 +103,8 @@ class TrainConfig:
             default = getattr(TrainConfig(), key)
             if key == "hidden":
                 ok = isinstance(value, list) and value and all(isinstance(v, int) and v > 0 for v in value)
+            elif key == "road":
+                ok = isinstance(value, int) and not isinstance(value, bool) and 0 <= value <= ROAD_MAX
             elif isinstance(default, bool):
                 ok = isinstance(value, bool)
             elif value is None:
@@ -109,7 +114,8 @@ class TrainConfig:
             else:
                 ok = isinstance(value, (int, float)) and not isinstance(value, bool)
             if not ok:
-                kind = ("a list of positive ints" if key == "hidden" else "true or false" if isinstance(default, bool)
+                kind = ("a list of positive ints" if key == "hidden" else f"an int from 0 to {ROAD_MAX}" if key == "road"
+                        else "true or false" if isinstance(default, bool)
                         else "an int >= 0" if isinstance(default, int) else "a number")
                 raise ValueError(f"{pair!r}: {key} must be {kind}{' or null' if key in _OPTIONAL else ''}")
             setattr(out, key, float(value) if isinstance(default, float) and value is not None else value)
@@ -133,7 +139,7 @@ class FTMLTrainer:
     def fit_normalization(self) -> None:
         """Set the model's input/output statistics from all data so far (done once, at warm start)."""
         data = self.buffers.all_data()
-        self.model.fit_normalization(data["history"], data["action"], data["next", "observation"])
+        self.model.fit_normalization(data["history"], data["action"], data["next", "observation"], road_of(data))
 
     def _split(self, rounds: list[int]) -> list[tuple[int, int]]:
         """(round, windows) pairs: up to ``rounds_per_update`` rounds drawn without replacement."""
