@@ -65,13 +65,14 @@ def driver_trajectories(driver: str, town: str, n: int, seed: int) -> list:
 
 
 def own_ensemble(trajectories: list, updates: int, seed: int, init: list[dict] | None = None,
-                 bootstrap: bool = False) -> tuple[dict[str, Any], list]:
+                 bootstrap: bool = False, config: dict[str, Any] | None = None) -> tuple[dict[str, Any], list]:
     """An ensemble trained (plain maximum likelihood) on ``trajectories`` only: (model spec, member params).
 
     ``init``: the members' starting state dicts (a study's meta model, normalization included) instead of a
     random initialization with normalization fitted on the data (:meth:`EnsembleTrainer.fine_tuned`; no
-    trajectories: that ensemble unchanged); ``bootstrap``: each member fine-tunes on its own resample."""
-    config = {"state_dim": STATE_DIM, "n_actions": 7, "K": TRAIN.K, "hidden": TRAIN.hidden}
+    trajectories: that ensemble unchanged); ``bootstrap``: each member fine-tunes on its own resample; ``config``:
+    the members' architecture (``init``'s, e.g. a study's model that reads the road; default: the default preset's)."""
+    config = config or {"state_dim": STATE_DIM, "n_actions": 7, "K": TRAIN.K, "hidden": TRAIN.hidden}
     if init is None:
         trainer = EnsembleTrainer(lambda: DynamicsModel(**config), RoundBuffers.of(trajectories, TRAIN.L, seed),
                                   TRAIN, size=TRAIN.ensemble, seed=seed)
@@ -91,7 +92,7 @@ def run_job(driver: str, town: str, sizes: list[int], routes: int, updates: int,
     """Every episode of one (driver, town): explore, oracle and the planner on each size's own ensemble
     (fine-tuned from ``study``'s final adapt ensemble when given; size 0: that ensemble unchanged)."""
     torch.set_num_threads(1)
-    init = final_models(study, town)[1] if study else None
+    study_model, init = final_models(study, town) if study else (None, None)
     label = "meta+own" if study else "own"
     t0 = time.perf_counter()
     data = driver_trajectories(driver, town, max(sizes), seed)
@@ -99,7 +100,8 @@ def run_job(driver: str, town: str, sizes: list[int], routes: int, updates: int,
     episodes = [drive_panel_episode(PanelJob(driver, town, r, 1000 + r, m)) for r in range(routes)
                 for m in ("explore", "oracle")]
     for n in sizes:
-        spec, params = own_ensemble(data[:n], updates, derive_seed(seed, driver, town, "init"), init, bootstrap)
+        spec, params = own_ensemble(data[:n], updates, derive_seed(seed, driver, town, "init"), init, bootstrap,
+                                    study_model.config() if study_model else None)
         for r in range(routes):
             e = drive_panel_episode(PanelJob(driver, town, r, 1000 + r, "retime@learned", planner=planner or {},
                                              model=spec, params=params))

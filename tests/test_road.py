@@ -198,3 +198,24 @@ def test_route_goals_projection_is_the_nearest_point_near_the_previous_one():
     k = torch.arange(40)
     reach = (k >= index.unsqueeze(-1) - 2) & (k <= index.unsqueeze(-1) + ROUTE_REACH)
     assert torch.equal(new, torch.where(reach, d, torch.full_like(d, float("inf"))).argmin(-1))
+
+
+def test_speed_actions_keep_the_road_and_a_beam_needs_a_model_without_it(drive):
+    from pernav.planner.tree_search import TreeSearchPlanner
+    from pernav.trainer.collect import to_speed_actions
+
+    wide = to_speed_actions(drive)
+    torch.testing.assert_close(wide["road"], road_points(drive["route_ahead"]))  # adapt_speed's data too
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(n_actions=21, hidden=(8,), road=4)))
+    with pytest.raises(ValueError, match="beam search needs a model without the road"):
+        TreeSearchPlanner(env, beam=64)
+
+
+def test_a_study_refuses_the_road_with_the_paper_planners_beam_before_writing_anything(tmp_path, capsys):
+    from pernav.cli import main
+
+    out = tmp_path / "s"
+    args = ["study", "--preset", "smoke", "--out", str(out), "--planner", "paper", "--train-option", "road=4"]
+    assert main([*args, "--methods", "explore", "adapt_speed"]) == 2
+    err = capsys.readouterr().err
+    assert "adapt_speed" in err and "road" in err and "Traceback" not in err and not out.exists()

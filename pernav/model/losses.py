@@ -47,7 +47,10 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
     actions = batch["action"]
     states = batch["observation"]
     next_states = batch["next", "observation"]
-    road = road_of(batch) if model.road else None  # the true road at every step (it is the map, not imagined)
+    # the road at every step is the one ahead of the *true* car (what the data stores), while imagine() gives
+    # the road ahead of the imagined car: later steps here see the true car's progress through the road's
+    # first point (a partly teacher-forced loss; storing more of the route would let it track the prediction)
+    road = road_of(batch) if model.road else None
     S = model.state_dim
     if ensemble is None:
         mean, std = model.out_mean, model.out_std

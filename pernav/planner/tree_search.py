@@ -104,6 +104,9 @@ class TreeSearchPlanner(MPCPlannerBase):
         self.params: list[TensorDictBase] | TensorDictBase | None = None
         self.in_keys = ["observation", "history", "plan_goals", "explore_plan", "action_mask"]
         if self.model is not None and self.model.road:  # it reads the road ahead of every imagined car
+            if beam is not None:  # imagine() rolls the whole tree out; a beam would need the road in _step
+                raise ValueError("beam search needs a model without the road (TrainConfig.road = 0); "
+                                 f"this model reads {self.model.road} road points")
             self.in_keys.append("route_ahead")
         self.last: list[PlanResult] = []
         self.nonfinite = 0  # decisions where some imagined cost was NaN/Inf
@@ -184,8 +187,9 @@ class TreeSearchPlanner(MPCPlannerBase):
     @torch.no_grad()
     def imagined_search(self, root: TensorDictBase, goals: torch.Tensor, plan: torch.Tensor,
                         mask: torch.Tensor) -> PlanResult:
-        """The same tree, imagined by the env's ``imagine`` (e.g. the true simulator) and averaged over its
-        samples: every sequence of the masked tree at once (the env shares their common prefixes)."""
+        """The same tree, imagined by the env's ``imagine`` (the true simulator, or a model that reads the road)
+        and averaged over its samples: every sequence of the masked tree rolled out whole (the true simulator
+        shares their common prefixes; a model does not)."""
         H = min(self.horizon, goals.shape[0])
         seqs = torch.cartesian_prod(*[self._allowed(mask, h) for h in range(H)]).reshape(-1, H)
         pos, goal = self.env.imagine(root, seqs)  # [M, N, H, 2]

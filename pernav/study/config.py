@@ -79,6 +79,9 @@ class StudyConfig:
         if self.train.backtrack is not None and not 0.0 < self.train.backtrack < 1.0:
             raise PresetError(f"train.backtrack must be in (0, 1) or null (the paper's fixed step), got "
                               f"{self.train.backtrack}")
+        if self.train.road and self.planner.get("kind") == "paper" and "adapt_speed" in self.methods:
+            raise PresetError(f"train.road = {self.train.road} with the paper planner: adapt_speed's beam search "
+                              "needs a model without the road; drop adapt_speed from the methods or use road 0")
         for town in self.towns:
             phases = [e.phase for e in self.entries_for(town)]
             if "offline" not in phases or "online" not in phases:

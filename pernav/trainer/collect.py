@@ -20,6 +20,7 @@ from tensordict.nn import TensorDictModule
 from torchrl.envs import EnvBase, TransformedEnv
 
 from pernav.env.torchrl_env import make_torchrl_env
+from pernav.model.dynamics import road_of
 from pernav.transforms.history import HistoryWindow
 
 __all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "to_speed_actions"]
@@ -72,6 +73,9 @@ def to_speed_actions(trajectory: TensorDictBase, n_instructions: int = 7) -> Ten
     Used to share rule-based data (which always speaks at normal speed) with a 21-action model.
     """
     out = trajectory.select("observation", "action", "history", ("next", "observation")).clone()
+    road = road_of(trajectory)  # the route ahead, for a model that reads the road
+    if road is not None:
+        out["road"] = road.clone()
     out["action"] = out["action"] * 3 + 1
     hist = out["history"]
     S = hist.shape[-1] - n_instructions
