@@ -179,27 +179,33 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     # (5) the default re-timing planner as the default study deploys it (horizon 12, an ensemble of the default
     # preset's models, all members imagined at once) on states recorded with that preset's history length
     from pernav.model.adapt import meta_parameters
+    from pernav.model.dynamics import road_of
     from pernav.study.config import preset
 
     train = preset("default").train
     data_k = data if train.K == 5 else _recorded_states(routes, fast, K=train.K)
-    members = [DynamicsModel(K=train.K, hidden=train.hidden) for _ in range(train.ensemble)]
-    for m in members:
-        m.fit_normalization(data_k["history"], data_k["action"], data_k["next", "observation"])
-    retime = RetimingPlanner(ImaginedNavigationEnv(make_world_model(members[0])))
-    retime.params = [meta_parameters(m).detach() for m in members]
-    retime_t = []
-    for i in range(steps.shape[0]):
-        before = retime.decisions
-        t, _ = _timed(retime, data_k[i * data_k.shape[0] // steps.shape[0]].select(*retime.in_keys).clone())
-        if retime.decisions > before:  # a decision with a choice (elsewhere it plays explore at once)
-            retime_t.append(t)
+    times: dict[int, list[float]] = {}
+    for road in (train.road, 8 if train.road != 8 else 0):  # the default's model, and the other road option
+        members = [DynamicsModel(K=train.K, hidden=train.hidden, road=road) for _ in range(train.ensemble)]
+        for m in members:
+            m.fit_normalization(data_k["history"], data_k["action"], data_k["next", "observation"], road_of(data_k))
+        retime = RetimingPlanner(ImaginedNavigationEnv(make_world_model(members[0])))
+        retime.params = [meta_parameters(m).detach() for m in members]
+        times[road] = []
+        for i in range(steps.shape[0]):
+            before = retime.decisions
+            t, _ = _timed(retime, data_k[i * data_k.shape[0] // steps.shape[0]].select(*retime.in_keys).clone())
+            if retime.decisions > before:  # a decision with a choice (elsewhere it plays explore at once)
+                times[road].append(t)
+    retime_t, other = times[train.road], next(r for r in times if r != train.road)
     ratio = statistics.median(level_t) / statistics.median(flat_t)
     return {
         "retime_model": f"{train.ensemble} x MLP {list(train.hidden)}, K={train.K}",
         "retime_searched_states": len(retime_t),
         "retime_ms_median": _median_ms(retime_t) if retime_t else None,
         "retime_ms_p95": _p95_ms(retime_t) if retime_t else None,
+        # the same planner with a model that reads the road (TrainConfig.road; or without it, if the default reads it)
+        f"retime_road{other}_ms_median": _median_ms(times[other]) if times[other] else None,
         "threads": torch.get_num_threads(),
         "exhaustive_states": len(level_t),
         "exhaustive_level_ms_median": _median_ms(level_t),
