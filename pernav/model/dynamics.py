@@ -182,7 +182,7 @@ class DynamicsModel(nn.Module):
             raise ValueError(f"this model reads {self.road} road points ahead: pass road [..., >= {self.road}, 2] "
                              f"(road_points of the route), got {None if road is None else tuple(road.shape)}")
         ahead = _rotate(road[..., : self.road, :] - now[..., X:Y + 1], -theta[..., 0])
-        return torch.cat([feats.flatten(-2), ahead.expand(*feats.shape[:-2], -1, -1).flatten(-2)], dim=-1)
+        return torch.cat([feats.flatten(-2), ahead.flatten(-2)], dim=-1)  # ahead has the window's batch (via now)
 
     # ----- prediction ----------------------------------------------------------------------------
     def normalized_delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:

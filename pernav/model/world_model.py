@@ -36,9 +36,24 @@ from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 
-__all__ = ["ImaginedNavigationEnv", "make_world_model", "route_goal"]
+__all__ = ["ImaginedNavigationEnv", "make_world_model", "route_goal", "route_index"]
 
 ROUTE_REACH = 8  # route points (3 m each) the car may advance in one imagined step; 2 back (no jumps)
+
+
+def route_index(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """The car's projection on the route ``[P, 2]`` for ``state`` ``[..., 14]``: the nearest route point among
+    those near the previous projection ``index`` ``[...]`` (2 back to ``ROUTE_REACH`` ahead: no jumps).
+
+    >>> route = torch.stack([torch.arange(10.0) * 3, torch.zeros(10)], -1)
+    >>> state = torch.zeros(14); state[0] = 6.2
+    >>> int(route_index(state, route, torch.tensor(1)))
+    2
+    """
+    # only the points near the previous projection: a step's distances cost 11, not P
+    near = (index.unsqueeze(-1) + torch.arange(-2, ROUTE_REACH + 1)).clamp(0, route.shape[0] - 1)  # ties go low
+    d = (route[near] - state[..., None, [X, Y]]).norm(dim=-1)
+    return near.gather(-1, d.argmin(-1, keepdim=True)).squeeze(-1)
 
 
 def route_goal(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -53,10 +68,7 @@ def route_goal(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) ->
     (2, [12.2, 0.0])
     """
     P = route.shape[0]
-    # the nearest of the points near the previous projection (only those: a step's distances cost 11, not P)
-    near = (index.unsqueeze(-1) + torch.arange(-2, ROUTE_REACH + 1)).clamp(0, P - 1)  # ascending: ties go low
-    d = (route[near] - state[..., None, [X, Y]]).norm(dim=-1)
-    index = near.gather(-1, d.argmin(-1, keepdim=True)).squeeze(-1)
+    index = route_index(state, route, index)
     # between the points: project on the route's local direction (the env projects on 2-m waypoints)
     tangent = route[(index + 1).clamp(max=P - 1)] - route[(index - 1).clamp(min=0)]
     tangent = tangent / tangent.norm(dim=-1, keepdim=True).clamp(min=1e-6)
@@ -157,9 +169,10 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
                     ahead = road_points(route, road, index) if road else None
                     state = (self.dynamics.ensemble_forward(hist, sequences[:, h], stacked, ahead) if ensemble
                              else self.dynamics(hist, action, ahead))
-                    if route is not None:
-                        on_route, index = route_goal(state, route, index)
-                        state = on_route if route_goals else state
+                    if route_goals:
+                        state, index = route_goal(state, route, index)
+                    elif road:  # the projection only (the road of the next step), not the goal
+                        index = route_index(state, route, index)
                     hist = self.dynamics.next_window(hist, action, state)
                     pos.append(state[..., [X, Y]])
                     goal.append(state[..., [GX, GY]])
