@@ -132,6 +132,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
                         "at random; the default preset's choice)")
+    p.add_argument("--tau", choices=COLLECT,
+                   help="the policy of each round's adaptation trajectory: explore (the paper's rule; default) or "
+                        "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
     p.add_argument("--calibration", type=int, metavar="N",
                    help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
     p.add_argument("--personal-updates", type=int, metavar="N",
@@ -173,6 +176,8 @@ def _study(args: argparse.Namespace) -> None:
         cfg.methods = [m for m in METHODS if m in args.methods]
     if args.collect is not None:
         cfg.collect = args.collect
+    if args.tau is not None:
+        cfg.tau = args.tau
     if args.calibration is not None:
         cfg.calibration = args.calibration
     try:

@@ -18,7 +18,7 @@ from pernav.world.towns import TOWN_NAMES
 __all__ = ["COLLECT", "METHODS", "PRESETS", "PresetError", "StudyConfig", "preset"]
 
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "oracle")
-COLLECT = ("explore", "retimed")  # StudyConfig.collect choices
+COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 
 
@@ -44,6 +44,10 @@ class StudyConfig:
     # random, pernav.planner.RetimedExplore, so the data identify what a prompt's timing does). The tau
     # trajectories and every evaluation stay pure explore either way.
     collect: str = "explore"
+    # the policy that drives each round's adaptation trajectory tau (paper: "one trajectory with the exploration
+    # policy"): "explore" (the rule itself) or "retimed" (RetimedExplore, so tau shows this driver's answer to a
+    # prompt's timing, which one explore drive cannot). Every evaluation episode stays pure explore either way
+    tau: str = "explore"
     # re-timed drives (RetimedExplore) of each online round's user before its evaluation, beside tau: data of
     # this user's answers to a prompt's timing (train.personal_updates adapts on them; 0: none, the paper)
     calibration: int = 0
@@ -69,6 +73,8 @@ class StudyConfig:
             raise PresetError(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
         if self.collect not in COLLECT:
             raise PresetError(f"collect must be one of {', '.join(COLLECT)}, got {self.collect!r}")
+        if self.tau not in COLLECT:
+            raise PresetError(f"tau must be one of {', '.join(COLLECT)}, got {self.tau!r}")
         if not 1 <= self.routes <= 10:
             raise PresetError(f"routes must be in [1, 10], got {self.routes}")
         if self.rollouts < 0 or self.offline_trajectories < 1:

@@ -2,9 +2,10 @@
 
 Per town: the offline entries are driven by the explore policy into every learner's data stream; the
 learners (``sysid``, ``adapt``: 7 actions, ``adapt_speed``: 21) are warm-started by maximum likelihood
-(Eq. 1). Then, per online entry ``t``: one explore trajectory ``tau_t`` (and ``calibration`` re-timed drives of
-the round's user, if configured); adapt ``U(P_t, tau_t)`` (or, with ``train.personal_updates``, that many
-maximum-likelihood updates from ``P_t`` on the user's drives); evaluate
+(Eq. 1). Then, per online entry ``t``: one trajectory ``tau_t`` of the round's user (by explore, or with
+``tau: retimed`` by explore re-timed at random; each offline entry's first drive is its tau, driven the same
+way) and ``calibration`` re-timed drives of the user, if configured; adapt ``U(P_t, tau_t)`` (or, with
+``train.personal_updates``, that many maximum-likelihood updates from ``P_t`` on the user's drives); evaluate
 every method on the evaluation routes with that round's user (same episode seeds for every method);
 ``rollouts`` trajectories per learner, each by its MPC policy with probability 1/2 and by explore otherwise,
 into the learner's own ``D_t``; then FTML meta updates (``adapt``, ``adapt_speed``) or plain updates on all
@@ -97,6 +98,11 @@ def _collector(cfg: StudyConfig, seed: int) -> Any:
     return explore_module()
 
 
+def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
+    """The policy of a round's adaptation trajectory tau (``cfg.tau``): explore, or explore re-timed at random."""
+    return RetimedExplore(seed=derive_seed(seed, "tau")) if cfg.tau == "retimed" else explore_module()
+
+
 def _rescue_check(learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
     """Whether and at what distance ``learner``'s planner may rescue in this round (``None``: the planner has no
     rescue, or needs no evidence). On the round's tau, with the round's parameters, the alarm's distance is
@@ -105,7 +111,7 @@ def _rescue_check(learner: Learner, params: Any, tau: Any) -> dict[str, Any] | N
     planner = learner.planner
     if getattr(planner, "rescue", None) is None or not planner.rescue_evidence:
         return None
-    if learner.n_actions == 21:  # tau is explore's: its actions and history in the 21-action space
+    if learner.n_actions == 21:  # tau's actions are instructions: in the 21-action space
         tau = to_speed_actions(tau).update({"route_ahead": tau["route_ahead"], "explore_future": tau["explore_future"],
                                             "action_mask": tau["action_mask"].repeat_interleave(3, -1)})
     planner.params = params
@@ -275,13 +281,14 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 for k in range(cfg.offline_trajectories):
                     route = rng.randrange(10)
                     seed = derive_seed(cfg.seed, town, entry.label, "offline", k)
-                    policy = explore_module() if k == 0 else _collector(cfg, seed)  # k = 0 is tau: explore
+                    policy = _tau_policy(cfg, seed) if k == 0 else _collector(cfg, seed)  # k = 0 is tau
                     traj = episode(cfg, town, entry, route, seed, policy)
-                    if k == 0 or cfg.collect == "explore":  # the round's explore figures: explore's episodes
+                    if not isinstance(policy, RetimedExplore):  # the round's explore figures: explore's episodes
                         episodes.append({"route": route, **episode_metrics(traj)})
                     for learner in learners.values():
                         learner.add(index, traj, tau=(k == 0))
-            record["methods"]["explore"] = _summarize(episodes)
+            if episodes:  # none when every offline drive is re-timed (collect and tau "retimed")
+                record["methods"]["explore"] = _summarize(episodes)
             if index + 1 == first_online:
                 with _Timer(profile, "training_s"):
                     _warm_start(cfg, learners)
@@ -289,8 +296,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         else:
             tau_route = rng.randrange(10)
             with _Timer(profile, "collection_s"):
-                tau = episode(cfg, town, entry, tau_route, derive_seed(cfg.seed, town, entry.label, "tau"),
-                              explore_module())
+                tau_seed = derive_seed(cfg.seed, town, entry.label, "tau")
+                tau = episode(cfg, town, entry, tau_route, tau_seed, _tau_policy(cfg, tau_seed))
             for learner in learners.values():
                 learner.add(index, tau, tau=True)
             _calibrate(cfg, town, entry, index, learners, profile)
