@@ -7,14 +7,16 @@ imagines the same two sequences from the same state; the recipe reports the corr
 the true and the predicted divergence, and the mean absolute error, for:
 
 * ``meta``: adapt's final meta model from a study (``--study DIR``, its Town checkpoint);
-* ``adapted``: that model after one adaptation step on one explore trajectory of the driver (as in the study);
-* ``personal``: the meta model fine-tuned as the default study now adapts (100 updates on that explore
-  trajectory and four re-timed drives of the driver: ``calibration`` 4, ``personal_updates`` 100);
+* ``adapted``: that model after one adaptation step on one trajectory of the driver (as in the study): an explore
+  drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option);
+* ``personal``: the meta model fine-tuned as a study with personal updates adapts: ``--personal-updates`` (100)
+  updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).
 
 Run (after ``make study`` or ``pernav study --preset default --out runs/default``):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/model_check.py --study runs/default [--town Town1]
 [--json docs/figures/model_check/model_check_Town1.json] [--plot docs/figures/model_check/divergence_Town1.png]
+[--tau retimed --calibration 0 --personal-updates 100]  (the models of a study run with those options)
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from pernav.trainer.ftml import FTMLTrainer, TrainConfig
 from pernav.world.drivers import Context
 
 DELAY, STEPS = 3, (5, 10)
+PLANNING = env_planning_config({"kind": "retime"})  # the explore plan as far ahead as the re-timings reach
 
 
 def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: dict | None = None):
@@ -51,14 +54,14 @@ def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: di
                        config={"n_traffic": 4, **(config or {})}, seed=seed, K=K)
 
 
-def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: str) -> list:
-    """The members fine-tuned as the default study adapts (``calibration`` 4, ``personal_updates`` 100): on
-    ``tau`` and four re-timed drives of the driver."""
-    planning = env_planning_config({"kind": "retime"})  # the explore plan as far ahead as the re-timings reach
-    drives = [drive(driver_env(driver, town, k, 780 + k, meta.K, planning), RetimedExplore(seed=780 + k))
-              for k in range(4)]
+def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: str, calibration: int = 4,
+                    updates: int = 100) -> list:
+    """The members fine-tuned as a study with ``calibration`` and ``personal_updates`` adapts: ``updates``
+    updates on ``tau`` and ``calibration`` re-timed drives of the driver."""
+    drives = [drive(driver_env(driver, town, k, 780 + k, meta.K, PLANNING), RetimedExplore(seed=780 + k))
+              for k in range(calibration)]
     train = TrainConfig(L=5, batch=128, K=meta.K, hidden=list(meta.hidden))
-    return EnsembleTrainer.from_states(meta.config(), members, train).fine_tuned([tau, *drives], 100, seed=0)
+    return EnsembleTrainer.from_states(meta.config(), members, train).fine_tuned([tau, *drives], updates, seed=0)
 
 
 def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsModel:
@@ -106,6 +109,10 @@ def main() -> None:
     ap.add_argument("--drivers", nargs="*", default=list(PANEL))
     ap.add_argument("--json", default="model_check.json")
     ap.add_argument("--plot", default=None, help="scatter of true vs predicted divergence (png)")
+    ap.add_argument("--tau", choices=["explore", "retimed"], default="explore",
+                    help="the adaptation trajectory's policy, as the study's tau option (default explore)")
+    ap.add_argument("--calibration", type=int, default=4, help="re-timed drives of the personal model (default 4)")
+    ap.add_argument("--personal-updates", type=int, default=100, help="updates of the personal model (default 100)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     study = Path(args.study)
@@ -115,7 +122,8 @@ def main() -> None:
     meta, members = final_models(study, args.town)
     rows, pooled = {}, {}
     for driver in args.drivers:
-        tau = drive(driver_env(driver, args.town, 7, 77, meta.K), explore_module())
+        policy = RetimedExplore(seed=77) if args.tau == "retimed" else explore_module()
+        tau = drive(driver_env(driver, args.town, 7, 77, meta.K, PLANNING if args.tau == "retimed" else None), policy)
         params, adapted = [], []
         for state in members:  # U(P, tau) of every member, as the study adapts
             meta.load_state_dict(state)
@@ -124,7 +132,8 @@ def main() -> None:
         own = per_driver_model(driver, args.town, meta)
         imagined = ImaginedNavigationEnv(make_world_model(meta))
         models = {"meta": (imagined, params), "adapted": (imagined, adapted),
-                  "personal": (imagined, personal_params(meta, members, tau, driver, args.town)),
+                  "personal": (imagined, personal_params(meta, members, tau, driver, args.town,
+                                                             args.calibration, args.personal_updates)),
                   "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
         div = approach_divergences(driver, args.town, models)
         for name, values in div.items():

@@ -253,3 +253,35 @@ def test_a_study_with_rescues_checks_them_on_each_rounds_tau(two_workers, tmp_pa
         assert c["hits"] + c["false_alarms"] == c["alarms"] and c["hits"] <= c["real"]
         assert c["threshold"] >= 8.0 and c["allowed"] == (c["hits_at_threshold"] > 0)
     assert "rescue_checks" not in json.dumps(two_workers[1]["diagnostics"])  # no rescue, no checks
+
+
+@pytest.mark.slow
+def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, capsys):
+    import torch
+
+    from pernav.study import PresetError
+    from pernav.trainer.buffers import RoundBuffers
+
+    def run(tau: str) -> tuple[dict, RoundBuffers]:
+        cfg = _smoke(["Town1"])
+        cfg.methods, cfg.tau, cfg.schedule = ["explore", "sysid"], tau, cfg.schedule[:2]
+        results = run_study(cfg, tmp_path / tau)
+        last = sorted((tmp_path / tau / "checkpoints" / "Town1").glob("entry_*"))[-1]
+        return results, RoundBuffers.load(last / "buffers_sysid")
+
+    explore, explore_buffers = run("explore")
+    retimed, retimed_buffers = run("retimed")
+    for round_ in (0, 1):  # the offline round's tau and the online round's: re-timed prompts, the same driver
+        a, b = explore_buffers.tau(round_), retimed_buffers.tau(round_)
+        assert not torch.equal(a["action"][: min(len(a), len(b))], b["action"][: min(len(a), len(b))])
+    # no explore episode in the offline round (every drive re-timed); the online evaluation is the same episodes
+    assert retimed["iterations"][0]["towns"]["Town1"] == {}
+    assert explore["iterations"][0]["towns"]["Town1"]["explore"]["episodes"]
+    assert retimed["iterations"][1]["towns"]["Town1"]["explore"] == explore["iterations"][1]["towns"]["Town1"]["explore"]
+    cfg = preset("smoke")
+    cfg.tau = "random"
+    with pytest.raises(PresetError, match="tau must be one of explore, retimed, got 'random'"):
+        cfg.validate()
+    with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
+        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--tau", "random"])
+    assert exit_.value.code == 2 and "--tau" in capsys.readouterr().err and not (tmp_path / "s").exists()
