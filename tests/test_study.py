@@ -175,6 +175,25 @@ def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "study.json"]
 
 
+def test_a_study_saved_before_an_option_existed_resumes_only_at_its_default(tmp_path):
+    from pernav.study.study import OutputError, _fingerprint, check_output
+
+    cfg = preset("smoke")
+    saved = _fingerprint(cfg)
+    del saved["tau"], saved["train"]["road"]  # as written before these options existed
+    (tmp_path / "study.json").write_text(json.dumps(saved))
+    check_output(cfg, tmp_path, resume=True)  # it ran with their defaults: the same study
+    for option, value, name in [("tau", "retimed", "'tau'"), ("routes", 2, "'routes'")]:
+        changed = preset("smoke")
+        setattr(changed, option, value)
+        with pytest.raises(OutputError, match=name):
+            check_output(changed, tmp_path, resume=True)
+    changed = preset("smoke")
+    changed.train.road = 4
+    with pytest.raises(OutputError, match="'train.road'"):
+        check_output(changed, tmp_path, resume=True)
+
+
 def test_trainers_loaded_from_one_state_share_no_tensors():
     import torch
     from tensordict import TensorDict

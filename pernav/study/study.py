@@ -16,6 +16,7 @@ import os
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +25,7 @@ from pernav.study.config import METHODS, StudyConfig
 from pernav.study.parallel import init_worker, make_executor
 from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
+from pernav.trainer.ftml import TrainConfig
 
 __all__ = ["OutputError", "check_output", "run_study", "summarize"]
 
@@ -36,6 +38,34 @@ class OutputError(ValueError):
 
 def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
     return json.loads(json.dumps(cfg.to_dict()))
+
+
+def _option_defaults() -> dict[str, Any]:
+    """The fingerprint's default of every option that has one (the study options and ``train``)."""
+    out = {f.name: f.default if f.default_factory is MISSING else f.default_factory()
+           for f in fields(StudyConfig) if f.default is not MISSING or f.default_factory is not MISSING}
+    out["train"] = TrainConfig().to_dict()
+    return json.loads(json.dumps(out))
+
+
+def _difference(saved: dict[str, Any], current: dict[str, Any], defaults: dict[str, Any],
+                prefix: str = "") -> str | None:
+    """The first option (dotted) where two fingerprints differ, or None. An option the saved study lacks
+    predates that option, so the study ran with its default: it matches a current value equal to the default."""
+    for key in [*current, *(k for k in saved if k not in current)]:
+        if key not in saved:
+            if key in defaults and current[key] == defaults[key]:
+                continue
+            return prefix + key
+        if key not in current:
+            return prefix + key
+        if isinstance(saved[key], dict) and isinstance(current[key], dict) and isinstance(defaults.get(key), dict):
+            inner = _difference(saved[key], current[key], defaults[key], f"{prefix}{key}.")
+            if inner:
+                return inner
+        elif saved[key] != current[key]:
+            return prefix + key
+    return None
 
 
 def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
@@ -51,8 +81,8 @@ def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
             saved = json.loads(marker.read_text())
         except json.JSONDecodeError:
             raise OutputError(f"{str(marker)!r} is corrupted; cannot tell which study this folder holds") from None
-        if saved != _fingerprint(cfg):
-            diff = next((k for k in saved if saved.get(k) != _fingerprint(cfg).get(k)), "config")
+        diff = _difference(saved, _fingerprint(cfg), _option_defaults()) if isinstance(saved, dict) else "config"
+        if diff:
             raise OutputError(f"output folder {str(out)!r} holds a different study (its {diff!r} differs); "
                               "choose another --out")
     elif out.exists() and any(out.iterdir()):
