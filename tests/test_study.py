@@ -175,23 +175,34 @@ def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, cap
     assert sorted(p.name for p in out.iterdir()) == ["results.json", "study.json"]
 
 
-def test_a_study_saved_before_an_option_existed_resumes_only_at_its_default(tmp_path):
+def test_a_study_saved_before_an_option_existed_resumes_only_at_its_old_value(tmp_path):
     from pernav.study.study import OutputError, _fingerprint, check_output
 
+    def saved_without(*keys: str, extra: dict | None = None) -> None:
+        saved = _fingerprint(preset("smoke"))
+        for key in keys:
+            *parents, last = key.split(".")
+            del (saved[parents[0]] if parents else saved)[last]
+        (tmp_path / "study.json").write_text(json.dumps({**saved, **(extra or {})}))
+
     cfg = preset("smoke")
-    saved = _fingerprint(cfg)
-    del saved["tau"], saved["train"]["road"]  # as written before these options existed
-    (tmp_path / "study.json").write_text(json.dumps(saved))
-    check_output(cfg, tmp_path, resume=True)  # it ran with their defaults: the same study
-    for option, value, name in [("tau", "retimed", "'tau'"), ("routes", 2, "'routes'")]:
+    saved_without("tau", "train.road")  # as written before these options existed
+    check_output(cfg, tmp_path, resume=True)  # it ran with tau explore and no road: the same study
+    for option, value, words in [("tau", "retimed", "'tau' differs: it predates"), ("routes", 2, "'routes' differs")]:
         changed = preset("smoke")
         setattr(changed, option, value)
-        with pytest.raises(OutputError, match=name):
+        with pytest.raises(OutputError, match=words):
             check_output(changed, tmp_path, resume=True)
     changed = preset("smoke")
     changed.train.road = 4
-    with pytest.raises(OutputError, match="'train.road'"):
+    with pytest.raises(OutputError, match="'train.road' differs"):
         check_output(changed, tmp_path, resume=True)
+    saved_without("train.backtrack")  # before it, U took the fixed step: not the default's study
+    with pytest.raises(OutputError, match="'train.backtrack' is not recorded"):
+        check_output(cfg, tmp_path, resume=True)
+    saved_without(extra={"horizon": 5})  # an option this pernav no longer has
+    with pytest.raises(OutputError, match="'horizon' is no longer an option"):
+        check_output(cfg, tmp_path, resume=True)
 
 
 def test_trainers_loaded_from_one_state_share_no_tensors():

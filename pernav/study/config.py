@@ -42,7 +42,7 @@ class StudyConfig:
     planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
     # the learners' non-MPC data: "explore" (the paper) or "retimed" (explore with its prompts re-timed at
     # random, pernav.planner.RetimedExplore, so the data identify what a prompt's timing does). The tau
-    # trajectories and every evaluation stay pure explore either way.
+    # trajectories (unless tau is "retimed") and every evaluation stay pure explore either way.
     collect: str = "explore"
     # the policy that drives each round's adaptation trajectory tau (paper: "one trajectory with the exploration
     # policy"): "explore" (the rule itself) or "retimed" (RetimedExplore, so tau shows this driver's answer to a

@@ -16,7 +16,6 @@ import os
 import statistics
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import MISSING, fields
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +24,6 @@ from pernav.study.config import METHODS, StudyConfig
 from pernav.study.parallel import init_worker, make_executor
 from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
-from pernav.trainer.ftml import TrainConfig
 
 __all__ = ["OutputError", "check_output", "run_study", "summarize"]
 
@@ -40,32 +38,31 @@ def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
     return json.loads(json.dumps(cfg.to_dict()))
 
 
-def _option_defaults() -> dict[str, Any]:
-    """The fingerprint's default of every option that has one (the study options and ``train``)."""
-    out = {f.name: f.default if f.default_factory is MISSING else f.default_factory()
-           for f in fields(StudyConfig) if f.default is not MISSING or f.default_factory is not MISSING}
-    out["train"] = TrainConfig().to_dict()
-    return json.loads(json.dumps(out))
+# Options added after studies had been saved, each with the value that reproduces a study from before it: a
+# saved study.json that lacks one of these ran with that value. Any other missing option (e.g. train.backtrack,
+# whose default changed what an older study did) makes the folder a different study.
+ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau": "explore", "calibration": 0, "train.ensemble": 1,
+                                 "train.personal_updates": 0, "train.road": 0}
 
 
-def _difference(saved: dict[str, Any], current: dict[str, Any], defaults: dict[str, Any],
-                prefix: str = "") -> str | None:
-    """The first option (dotted) where two fingerprints differ, or None. An option the saved study lacks
-    predates that option, so the study ran with its default: it matches a current value equal to the default."""
-    for key in [*current, *(k for k in saved if k not in current)]:
+def _difference(saved: dict[str, Any], current: dict[str, Any], prefix: str = "") -> str | None:
+    """Why two fingerprints differ (naming the first option, dotted), or None when they are the same study."""
+    for key in current:
+        name = prefix + key
         if key not in saved:
-            if key in defaults and current[key] == defaults[key]:
-                continue
-            return prefix + key
-        if key not in current:
-            return prefix + key
-        if isinstance(saved[key], dict) and isinstance(current[key], dict) and isinstance(defaults.get(key), dict):
-            inner = _difference(saved[key], current[key], defaults[key], f"{prefix}{key}.")
+            if name not in ADDED_OPTIONS:
+                return f"its {name!r} is not recorded (saved by an older pernav)"
+            if current[key] != ADDED_OPTIONS[name]:
+                return f"its {name!r} differs: it predates the option and ran with {ADDED_OPTIONS[name]!r}"
+            continue
+        if prefix == "" and key == "train" and isinstance(saved[key], dict) and isinstance(current[key], dict):
+            inner = _difference(saved[key], current[key], "train.")
             if inner:
                 return inner
         elif saved[key] != current[key]:
-            return prefix + key
-    return None
+            return f"its {name!r} differs"
+    gone = next((k for k in saved if k not in current), None)
+    return None if gone is None else f"its {prefix + gone!r} is no longer an option"
 
 
 def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
@@ -81,10 +78,9 @@ def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
             saved = json.loads(marker.read_text())
         except json.JSONDecodeError:
             raise OutputError(f"{str(marker)!r} is corrupted; cannot tell which study this folder holds") from None
-        diff = _difference(saved, _fingerprint(cfg), _option_defaults()) if isinstance(saved, dict) else "config"
+        diff = _difference(saved, _fingerprint(cfg)) if isinstance(saved, dict) else "it is not a configuration"
         if diff:
-            raise OutputError(f"output folder {str(out)!r} holds a different study (its {diff!r} differs); "
-                              "choose another --out")
+            raise OutputError(f"output folder {str(out)!r} holds a different study ({diff}); choose another --out")
     elif out.exists() and any(out.iterdir()):
         raise OutputError(f"output folder {str(out)!r} is not empty and holds no pernav study; choose another --out")
 
