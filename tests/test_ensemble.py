@@ -137,6 +137,37 @@ def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_th
         ens.fine_tuned(user, updates=0)
 
 
+def test_replayed_personal_updates_fit_the_user_and_forget_the_population_less():
+    from pernav.model.adapt import trajectory_windows
+    from pernav.model.losses import multistep_loss
+
+    torch.manual_seed(0)
+    population = [_trajectory(40, seed=10 + i) for i in range(4)]
+    buffers = RoundBuffers(L=3, seed=0)
+    for i, t in enumerate(population):
+        buffers.add(i, t, tau=True)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(32,)), buffers, TrainConfig(batch=32, L=3), size=2, seed=1)
+    ens.fit_normalization()
+    ens.train(100, meta=False)  # the "meta" parameters: fitted to the population
+    sampling = ens.members[0].generator.get_state(), buffers.generator.get_state()
+    user = [_trajectory(30, seed=7)]
+    alone = ens.fine_tuned(user, updates=100, seed=3)
+    replayed = ens.fine_tuned(user, updates=100, seed=3, replay=0.5)
+    assert torch.equal(ens.members[0].generator.get_state(), sampling[0])  # the study's draws are untouched
+    assert torch.equal(buffers.generator.get_state(), sampling[1])
+    pop = torch.cat([trajectory_windows(t, 3, 3) for t in population])
+    mine = trajectory_windows(user[0], 3, 3)
+    meta = [meta_parameters(m.model).detach() for m in ens.members]
+    with torch.no_grad():
+        for a, r, b in zip(alone, replayed, meta, strict=True):
+            loss = lambda windows, p: float(multistep_loss(ens.model, windows, params=p))  # noqa: E731
+            assert loss(pop, r) < loss(pop, a)  # anchored in the population's data
+            assert loss(mine, r) < loss(mine, b)  # and still fitted to the user
+    for bad in ({"replay": 1.0}, {"replay": -0.1}, {"replay": 0.5, "bootstrap": True}):
+        with pytest.raises(ValueError, match="replay must be in"):
+            ens.fine_tuned(user, updates=5, **bad)
+
+
 def test_weighted_loss_is_the_weighted_mean_over_windows_and_bootstrap_members_fit_their_resample():
     from pernav.model.adapt import trajectory_windows
     from pernav.model.losses import multistep_loss

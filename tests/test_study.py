@@ -256,6 +256,12 @@ def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_on
         err = capsys.readouterr().err
         assert words in err and bad in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "s").exists()
+    for extra, words in ((["--train-option", "personal_replay=1.5"], "train.personal_replay must be in [0, 1)"),
+                         (["--train-option", "personal_replay=0.5", "--personal-updates", "0"],
+                          "needs train.personal_updates > 0")):
+        assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), *extra]) == 2
+        assert words in capsys.readouterr().err
+        assert not (tmp_path / "s").exists()
 
 
 def test_an_episode_job_overrides_the_study_planner_options():

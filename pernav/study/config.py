@@ -82,6 +82,11 @@ class StudyConfig:
         if self.calibration < 0 or self.train.personal_updates < 0:
             raise PresetError(f"calibration and train.personal_updates must be >= 0, got {self.calibration} and "
                               f"{self.train.personal_updates}")
+        if not 0.0 <= self.train.personal_replay < 1.0:
+            raise PresetError(f"train.personal_replay must be in [0, 1), got {self.train.personal_replay}")
+        if self.train.personal_replay and not self.train.personal_updates:
+            raise PresetError("train.personal_replay needs train.personal_updates > 0 (it mixes the personal "
+                              "updates' data); got personal_updates 0")
         if self.train.backtrack is not None and not 0.0 < self.train.backtrack < 1.0:
             raise PresetError(f"train.backtrack must be in (0, 1) or null (the paper's fixed step), got "
                               f"{self.train.backtrack}")

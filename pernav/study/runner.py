@@ -76,7 +76,8 @@ class Learner:
         if not self.meta and cfg.train.ensemble == 1:
             return None
         if self.meta and cfg.train.personal_updates:
-            return self.trainer.fine_tuned(self.buffers.user_trajectories(round_), cfg.train.personal_updates, seed)
+            return self.trainer.fine_tuned(self.buffers.user_trajectories(round_), cfg.train.personal_updates, seed,
+                                           replay=cfg.train.personal_replay)
         return self.trainer.parameters(self.buffers.tau(round_), adapted=self.meta, alpha=cfg.train.alpha)
 
     def add(self, round_: int, trajectory: Any, tau: bool = False, calibration: bool = False) -> None:

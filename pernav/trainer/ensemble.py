@@ -150,7 +150,7 @@ class EnsembleTrainer:
         return out
 
     def fine_tuned(self, trajectories: list[TensorDictBase], updates: int, seed: int = 0,
-                   bootstrap: bool = False) -> list[TensorDictBase]:
+                   bootstrap: bool = False, replay: float = 0.0) -> list[TensorDictBase]:
         """Every member's parameters (detached) after ``updates`` plain maximum-likelihood updates on
         ``trajectories`` alone, starting from the current (meta) parameters with a fresh Adam; the ensemble
         itself is unchanged. The many-step, many-trajectory alternative to ``U`` (``personal_updates``).
@@ -158,16 +158,32 @@ class EnsembleTrainer:
         ``bootstrap``: each member fits its own bootstrap resample of the trajectories (as weights: how often
         the resample holds each), so the members disagree where a few drives of the driver do not pin the
         model down, and the planner's agreement gate reads that as uncertainty (with every member on the same
-        data they agree by construction)."""
+        data they agree by construction).
+
+        ``replay``: the share of every update's windows drawn from this trainer's own buffers (the data the
+        meta parameters were trained on) instead of ``trajectories``; the buffers' sampling state is restored
+        afterwards, so the study's own training draws as it would have without it."""
         if updates < 1 or not trajectories:
             raise ValueError(f"fine-tuning needs updates >= 1 and trajectories; got {updates} and {len(trajectories)}")
+        if not 0.0 <= replay < 1.0 or (replay and bootstrap):
+            raise ValueError(f"replay must be in [0, 1) and cannot be combined with bootstrap; got {replay}")
         twin = EnsembleTrainer.from_states(self.model.config(), [m.model.state_dict() for m in self.members],
                                            self.config, RoundBuffers.of(trajectories, self.config.L, seed), seed)
         if bootstrap:
             n, generator = len(trajectories), torch.Generator().manual_seed(seed)
             draws = torch.randint(n, (len(self.members), n), generator=generator)
             twin.trajectory_weights = torch.zeros(len(self.members), n).scatter_add_(1, draws, torch.ones(draws.shape))
-        twin.train(updates, meta=False)
+        n_replay = round(self.config.batch * replay)
+        if n_replay and self.buffers.rounds:
+            source = self.members[0]
+            states = source.generator.get_state(), self.buffers.generator.get_state()
+            for _ in range(updates):
+                twin.update(twin.members[0].plain_batches(self.config.batch - n_replay)
+                            + source.plain_batches(n_replay), meta=False)
+            source.generator.set_state(states[0])
+            self.buffers.generator.set_state(states[1])
+        else:
+            twin.train(updates, meta=False)
         return [meta_parameters(m.model).detach().clone() for m in twin.members]
 
     def round_loss(self, round_: int, adapted: bool, params: list[TensorDictBase] | None = None) -> float:

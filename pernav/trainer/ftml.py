@@ -70,6 +70,10 @@ class TrainConfig:
     # 0: adapt with U, one gradient step on tau (the paper). n > 0: adapt by n maximum-likelihood updates (fresh
     # Adam, lr) from the meta parameters on the round user's own drives, tau and calibration (EnsembleTrainer.fine_tuned)
     personal_updates: int = 0
+    # share of each personal update's windows drawn from the meta-training data (every round so far, the other
+    # drivers'), the rest from the user's drives: the fit to one drive stays anchored in the population's
+    # dynamics (a fit to one drive alone predicts the user's other drives worse). 0: the user's drives alone
+    personal_replay: float = 0.0
     # gradient-norm clip of every update and of U's adaptation step (None: none). Typical norms are 5-20; a
     # model whose rollouts diverge gives thousands, and unclipped one such step left an ensemble member whose
     # every later meta update overflowed (skipped, so frozen bad; docs/reliability.md)
@@ -184,13 +188,15 @@ class FTMLTrainer:
             raise ValueError("meta_update needs rounds with an adaptation trajectory")
         return [(r, n, self.buffers.sample(r, n)) for r, n in self._split(rounds)]
 
-    def plain_batches(self) -> list[tuple[int, int, Any]]:
-        """One plain update's data: ``batch`` windows drawn over all rounds in proportion to their size."""
+    def plain_batches(self, n: int | None = None) -> list[tuple[int, int, Any]]:
+        """One plain update's data: ``n`` (default ``batch``) windows drawn over all rounds in proportion to
+        their size."""
         rounds = self.buffers.rounds
         if not rounds:
             raise ValueError("plain_update needs data")
         sizes = torch.tensor([len(self.buffers.buffers[r]) for r in rounds], dtype=torch.float)
-        draws = torch.multinomial(sizes, self.config.batch, replacement=True, generator=self.generator)
+        draws = torch.multinomial(sizes, self.config.batch if n is None else n, replacement=True,
+                                  generator=self.generator)
         counts = [(r, int((draws == i).sum())) for i, r in enumerate(rounds)]
         return [(r, n, self.buffers.sample(r, n)) for r, n in counts if n]
 
