@@ -188,14 +188,14 @@ class FTMLTrainer:
             raise ValueError("meta_update needs rounds with an adaptation trajectory")
         return [(r, n, self.buffers.sample(r, n)) for r, n in self._split(rounds)]
 
-    def plain_batches(self, n: int | None = None) -> list[tuple[int, int, Any]]:
-        """One plain update's data: ``n`` (default ``batch``) windows drawn over all rounds in proportion to
-        their size."""
+    def plain_batches(self, windows: int | None = None) -> list[tuple[int, int, Any]]:
+        """One plain update's data: ``windows`` (default ``batch``) windows drawn over all rounds in proportion
+        to their size."""
         rounds = self.buffers.rounds
         if not rounds:
             raise ValueError("plain_update needs data")
         sizes = torch.tensor([len(self.buffers.buffers[r]) for r in rounds], dtype=torch.float)
-        draws = torch.multinomial(sizes, self.config.batch if n is None else n, replacement=True,
+        draws = torch.multinomial(sizes, self.config.batch if windows is None else windows, replacement=True,
                                   generator=self.generator)
         counts = [(r, int((draws == i).sum())) for i, r in enumerate(rounds)]
         return [(r, n, self.buffers.sample(r, n)) for r, n in counts if n]
