@@ -8,6 +8,10 @@ and where recorded the same for the paper's fixed step (studies whose ``U`` back
 
 Run: .venv/bin/python recipes/pool_seeds.py runs/seed0 runs/seed1 runs/seed2 [--json pooled.json]
 (a study folder or its results.json, e.g. a copy kept under docs/figures/)
+
+``--against B0 B1 B2`` pairs each method with the same method of other studies at the same seeds (two protocols
+compared on the same episodes: explore's episodes must be bitwise the same, or it exits 2):
+.venv/bin/python recipes/pool_seeds.py runs/tau6_{0,1,2} --against runs/default_{0,1,2} [--method adapt]
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import json
 import sys
 from pathlib import Path
 
+from pernav.diagnostics.stats import paired_difference
 from pernav.study.compare import compare
 from pernav.study.report import comparison_table
 
@@ -33,26 +38,70 @@ def adaptation_share(results: list[dict]) -> dict[str, list[int]]:
     return {k: [sum(v[k] < v["unadapted"] for v in rounds), len(rounds)] for k in keys}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("studies", nargs="+", help="study output folders (with results.json), or results.json files")
-    ap.add_argument("--json", help="write the pooled comparison here")
-    args = ap.parse_args()
-    iterations, results = [], []
-    for folder in args.studies:
+def episode_costs(results: list[dict], method: str) -> dict[tuple, float]:
+    """Every online episode's tracking cost of ``method``, keyed by (study seed, round, town, route)."""
+    return {(r["config"].get("seed"), it["label"], town, ep["route"]): ep["tracking_cost"]
+            for r in results for it in r["iterations"] if it["phase"] == "online"
+            for town, methods in it["towns"].items() if method in methods for ep in methods[method]["episodes"]}
+
+
+def paired_against(results: list[dict], others: list[dict], method: str) -> dict[str, dict[str, float]]:
+    """Per town, ``method`` in ``results`` minus ``method`` in ``others`` over the same episodes, with its
+    95 % bootstrap CI (< 0: ``results`` is cheaper). Raises ``ValueError`` unless both hold the same episodes
+    and explore drove them identically (the two sets must be the same seeds and schedule's evaluation)."""
+    explore, explore_other = episode_costs(results, "explore"), episode_costs(others, "explore")
+    if explore.keys() != explore_other.keys():
+        raise ValueError("the two sets of studies do not hold the same episodes (same seeds, rounds, towns and routes)")
+    if any(explore[k] != explore_other[k] for k in explore):
+        raise ValueError("explore's episodes differ between the two sets: they are not paired (other seeds or settings)")
+    mine, theirs = episode_costs(results, method), episode_costs(others, method)
+    if not mine or mine.keys() != theirs.keys():
+        raise ValueError(f"method {method!r} is not in every episode of both sets")
+    out = {}
+    for town in sorted({k[2] for k in mine}):
+        keys = sorted(k for k in mine if k[2] == town)
+        out[town] = paired_difference([mine[k] for k in keys], [theirs[k] for k in keys])  # mine - theirs
+    return out
+
+
+def _load(folders: list[str]) -> list[dict]:
+    results = []
+    for folder in folders:
         path = Path(folder) if Path(folder).is_file() else Path(folder) / "results.json"
         if not path.is_file():
             print(f"error: {path} does not exist (run the study first)", file=sys.stderr)
             sys.exit(2)
         results.append(json.loads(path.read_text()))
-        iterations.append(results[-1]["iterations"])
+    return results
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("studies", nargs="+", help="study output folders (with results.json), or results.json files")
+    ap.add_argument("--json", help="write the pooled comparison here")
+    ap.add_argument("--against", nargs="+", metavar="STUDY", help="other studies at the same seeds: pair with them")
+    ap.add_argument("--method", default="adapt", help="the method --against compares (default adapt)")
+    args = ap.parse_args()
+    results = _load(args.studies)
+    iterations = [r["iterations"] for r in results]
     pooled = compare(iterations)
     print(comparison_table(pooled))
     share = adaptation_share(results)
     for key, (lowered, n) in share.items():
         print(f"{key}: lowers the held-out loss in {lowered} of {n} online rounds")
+    extra = {}
+    if args.against:
+        try:
+            extra["paired_against"] = {"method": args.method, "against": args.against,
+                                       "towns": paired_against(results, _load(args.against), args.method)}
+        except ValueError as err:
+            print(f"error: --against: {err}", file=sys.stderr)
+            sys.exit(2)
+        for town, d in extra["paired_against"]["towns"].items():
+            print(f"{town}: {args.method} here - {args.method} in --against = {d['mean']:+.0f} "
+                  f"[{d['low']:+.0f}, {d['high']:+.0f}] over {d['n']} paired episodes (< 0: cheaper here)")
     if args.json:
-        Path(args.json).write_text(json.dumps({**pooled, "adaptation_lowers_held_out_loss": share}, indent=1))
+        Path(args.json).write_text(json.dumps({**pooled, "adaptation_lowers_held_out_loss": share, **extra}, indent=1))
 
 
 if __name__ == "__main__":
