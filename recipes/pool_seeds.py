@@ -83,23 +83,22 @@ def main() -> None:
     ap.add_argument("--method", default="adapt", help="the method --against compares (default adapt)")
     args = ap.parse_args()
     results = _load(args.studies)
-    iterations = [r["iterations"] for r in results]
-    pooled = compare(iterations)
-    print(comparison_table(pooled))
-    share = adaptation_share(results)
-    for key, (lowered, n) in share.items():
-        print(f"{key}: lowers the held-out loss in {lowered} of {n} online rounds")
     extra = {}
-    if args.against:
+    if args.against:  # before any output: unpaired sets fail at once, with nothing printed or written
         try:
             extra["paired_against"] = {"method": args.method, "against": args.against,
                                        "towns": paired_against(results, _load(args.against), args.method)}
         except ValueError as err:
             print(f"error: --against: {err}", file=sys.stderr)
             sys.exit(2)
-        for town, d in extra["paired_against"]["towns"].items():
-            print(f"{town}: {args.method} here - {args.method} in --against = {d['mean']:+.0f} "
-                  f"[{d['low']:+.0f}, {d['high']:+.0f}] over {d['n']} paired episodes (< 0: cheaper here)")
+    pooled = compare([r["iterations"] for r in results])
+    print(comparison_table(pooled))
+    share = adaptation_share(results)
+    for key, (lowered, n) in share.items():
+        print(f"{key}: lowers the held-out loss in {lowered} of {n} online rounds")
+    for town, d in extra.get("paired_against", {}).get("towns", {}).items():
+        print(f"{town}: {args.method} here - {args.method} in --against = {d['mean']:+.0f} "
+              f"[{d['low']:+.0f}, {d['high']:+.0f}] over {d['n']} paired episodes (< 0: cheaper here)")
     if args.json:
         Path(args.json).write_text(json.dumps({**pooled, "adaptation_lowers_held_out_loss": share, **extra}, indent=1))
 
