@@ -52,8 +52,13 @@ def paired_against(results: list[dict], others: list[dict], method: str) -> dict
     explore, explore_other = episode_costs(results, "explore"), episode_costs(others, "explore")
     if explore.keys() != explore_other.keys():
         raise ValueError("the two sets of studies do not hold the same episodes (same seeds, rounds, towns and routes)")
-    if any(explore[k] != explore_other[k] for k in explore):
-        raise ValueError("explore's episodes differ between the two sets: they are not paired (other seeds or settings)")
+    differ = [k for k in sorted(explore, key=str) if explore[k] != explore_other[k]]
+    if differ:
+        seed, label, town, route = differ[0]
+        raise ValueError(f"explore's episodes differ between the two sets in {len(differ)} of {len(explore)} episodes "
+                         f"(first: seed {seed}, {label}, {town}, route {route}: {explore[differ[0]]} vs "
+                         f"{explore_other[differ[0]]}): they are not paired (other seeds or settings, or results "
+                         "from another machine or install, which reproduce only statistically)")
     mine, theirs = episode_costs(results, method), episode_costs(others, method)
     if not mine or mine.keys() != theirs.keys():
         raise ValueError(f"method {method!r} is not in every episode of both sets")

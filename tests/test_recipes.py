@@ -119,7 +119,8 @@ def test_pool_seeds_pairs_two_protocols_on_the_same_episodes(tmp_path):
     with pytest.raises(ValueError, match="same episodes"):
         pool.paired_against(a[:1], other_seed, "adapt")
     moved = [_study_results(0, {"explore": [11.0, 20.0, 30.0], "adapt": [1.0, 2.0, 3.0]})]
-    with pytest.raises(ValueError, match="not paired"):
+    with pytest.raises(ValueError, match=r"in 1 of 3 episodes \(first: seed 0, Online 0, Town1, route 0: 10.0 vs 11.0\)"
+                       r".*not paired"):
         pool.paired_against(a[:1], moved, "adapt")
     for k, r in enumerate(a + moved):  # the CLI: unpaired sets exit 2 and write nothing
         (tmp_path / f"r{k}.json").write_text(json.dumps(r))
