@@ -57,8 +57,8 @@ def paired_against(results: list[dict], others: list[dict], method: str) -> dict
         seed, label, town, route = differ[0]
         raise ValueError(f"explore's episodes differ between the two sets in {len(differ)} of {len(explore)} episodes "
                          f"(first: seed {seed}, {label}, {town}, route {route}: {explore[differ[0]]} vs "
-                         f"{explore_other[differ[0]]}): they are not paired (other seeds or settings, or results "
-                         "from another machine or install, which reproduce only statistically)")
+                         f"{explore_other[differ[0]]}): they are not paired (other seeds or settings, or another "
+                         "install: explore reproduces bitwise only with the same installed versions)")
     mine, theirs = episode_costs(results, method), episode_costs(others, method)
     if not mine or mine.keys() != theirs.keys():
         raise ValueError(f"method {method!r} is not in every episode of both sets")
