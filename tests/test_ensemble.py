@@ -79,21 +79,25 @@ def test_round_loss_is_held_out_and_exact():
     assert trainer.round_loss(0, adapted=False) == trainer.round_loss(0, adapted=False)  # no sampling
 
 
-def _two_round_ensemble(config: TrainConfig, size: int, tau_length: int, other_length: int) -> EnsembleTrainer:
-    """An ensemble of small models (seed 2, normalization fitted) on two rounds of random data, each with a tau
-    of ``tau_length`` steps and one more trajectory of ``other_length``."""
+def _two_round_ensemble(config: TrainConfig, size: int, tau_length: int, other_length: int,
+                        context: int = 0) -> EnsembleTrainer:
+    """An ensemble of small models (seed 2, normalization fitted; ``context``: their context size) on two
+    rounds of random data, each with a tau of ``tau_length`` steps and one more trajectory of ``other_length``."""
     buffers = RoundBuffers(L=config.L, seed=0)
     for r in (0, 1):
         buffers.add(r, _trajectory(tau_length, seed=2 * r), tau=True)
         buffers.add(r, _trajectory(other_length, seed=2 * r + 1))
-    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16)), buffers, config, size=size, seed=2)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16), context=context), buffers, config, size=size,
+                          seed=2)
     ens.fit_normalization()
     return ens
 
 
-def test_batched_ensemble_update_equals_each_member_stepping_alone():
+@pytest.mark.parametrize("context", [0, 3])
+def test_batched_ensemble_update_equals_each_member_stepping_alone(context):
     def make(first_order: bool) -> EnsembleTrainer:
-        return _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2, first_order=first_order), 3, 20, 15)
+        return _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2, first_order=first_order), 3, 20, 15,
+                                   context)
 
     for meta, first_order in ((True, False), (True, True), (False, False)):
         batched, alone = make(first_order), make(first_order)
@@ -298,3 +302,47 @@ def test_backtracking_takes_the_largest_halved_step_that_passes_armijo_per_membe
     assert all(torch.equal(tiny.get(k), fixed.get(k)) for k in keys)  # a step that passes is the paper's own
     with pytest.raises(ValueError, match="backtrack"):
         adapt(ens.model, tau, alpha=0.01, L=5, first_order=False, params=stacked, backtrack=0.5)
+
+
+def test_a_context_model_adapts_only_its_context_and_the_meta_update_trains_the_weights_through_it():
+    ens = _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2, alpha=1.0), 2, 20, 15, context=4)
+    tau = ens.buffers.tau(0)
+    meta = meta_parameters(ens.model).detach().clone()
+    adapted = adapt(ens.model, tau, alpha=1.0, L=3, first_order=True)
+    assert not torch.equal(adapted["context"], meta["context"])
+    for key, value in meta.items(True, True):
+        if key != "context":
+            assert torch.equal(adapted.get(key), value), key
+    # batched imagination reads each member's own context
+    params = ens.parameters(tau, adapted=True, alpha=1.0)
+    env = ImaginedNavigationEnv(make_world_model(ens.model))
+    root = TensorDict({"history": torch.randn(5, 21)}, [])
+    seqs = torch.randint(7, (4, 5))
+    pos, _ = env.imagine(root, seqs, params=params)
+    for i, p in enumerate(params):
+        torch.testing.assert_close(pos[i], env.imagine(root, seqs, params=[p])[0][0], rtol=1e-5, atol=1e-5)
+    ens.train(2, meta=True)  # second order: the loss after the context step reaches the weights
+    assert not torch.equal(ens.model.net[0].weight, meta["net", "0", "weight"])
+    assert DynamicsModel(**ens.model.config()).n_context == 4
+    with pytest.raises(ValueError, match="context must be >= 0"):
+        DynamicsModel(context=-1)
+
+
+def test_context_adaptation_learns_which_round_it_is_from_tau():
+    """Two rounds whose next states differ by a constant shift only (the same windows otherwise): a context
+    model meta-trained on them predicts each round better after one step on its tau than before it."""
+    torch.manual_seed(0)
+    buffers = RoundBuffers(L=2, seed=0)
+    for r, shift in ((0, 1.5), (1, -1.5)):
+        for i, tau in ((0, True), (1, False)):
+            t = _trajectory(30, seed=10 * r + i)
+            t["history"][..., :14] = 0.0
+            t["observation"] = torch.zeros(30, 14)
+            t["next", "observation"] = torch.randn(30, 14, generator=torch.Generator().manual_seed(i)) * 0.1 + shift
+            buffers.add(r, t, tau=tau)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(32,), context=2), buffers,
+                          TrainConfig(batch=32, L=2, rounds_per_update=2, alpha=1.0, lr=1e-2, backtrack=None), size=1)
+    ens.fit_normalization()
+    ens.train(150, meta=True)
+    for r in (0, 1):
+        assert ens.round_loss(r, adapted=True) < 0.5 * ens.round_loss(r, adapted=False), r

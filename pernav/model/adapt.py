@@ -67,7 +67,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     transitions).
 
     ``params`` defaults to the model's own (meta) parameters; stacked ensemble parameters (batch ``[E]``)
-    adapt every member at once. Buffers (normalization statistics) are carried over unchanged.
+    adapt every member at once. Buffers (normalization statistics) are carried over unchanged. A model with a
+    context (``DynamicsModel(context=n)``) adapts only its context vector (CAVIA); the weights stay the meta ones.
 
     ``max_norm``: the step's gradient is scaled down to at most this global norm (per member), differentiably.
     A model whose L-step rollouts diverge on ``tau`` has an adaptation gradient of thousands (typically 5-20);
@@ -80,7 +81,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
         raise ValueError(f"backtrack must be in (0, 1) and needs first_order=True, got {backtrack} "
                          f"(first_order={first_order})")
     params = meta_parameters(model) if params is None else params
-    keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad]
+    keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad
+            and (not model.n_context or k == "context")]
     if not keys:
         raise ValueError("no parameter requires grad: nothing to adapt")
     windows = trajectory_windows(trajectory, L, L if stride is None else stride)

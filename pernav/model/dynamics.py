@@ -126,6 +126,9 @@ class DynamicsModel(nn.Module):
             ``ROAD_MAX``; 0: none, the paper's model). Then every prediction needs ``road`` ``[..., road, 2]``
             (world frame; expressed in the car's frame like the goal): where the road turns, which the driver's
             next second depends on and the state alone does not tell.
+        context: size of a learned context vector fed to the first layer beside the features (0: none, the
+            paper's model). With a context, ``U`` adapts only it (CAVIA, Zintgraf et al. 2019: the driver as a
+            few numbers the meta-trained network has learned to read, instead of a step on every weight).
 
     The window convention is :class:`~pernav.transforms.HistoryWindow`'s: the newest row holds the current
     state and a zero action; :meth:`forward` writes ``action`` there. :meth:`next_window` shifts a window
@@ -138,18 +141,23 @@ class DynamicsModel(nn.Module):
     """
 
     def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
-                 hidden: Sequence[int] = (256, 256, 256), road: int = 0) -> None:
+                 hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0) -> None:
         super().__init__()
         if state_dim != STATE_DIM:
             raise ValueError(f"state_dim must be {STATE_DIM} (the paper's state), got {state_dim}")
         if not 0 <= int(road) <= ROAD_MAX:
             raise ValueError(f"road must be between 0 and {ROAD_MAX} (route points the model reads), got {road}")
+        if int(context) < 0:
+            raise ValueError(f"context must be >= 0 (the size of the learned context vector), got {context}")
         self.state_dim, self.n_actions, self.K, self.road = state_dim, int(n_actions), int(K), int(road)
+        self.n_context = int(context)
         self.hidden = tuple(int(h) for h in hidden)
         self.window = HistoryWindow(K=self.K, n_actions=self.n_actions)
         self.n_features = self.K * (state_dim + 1 + self.n_actions) + 2 * self.road
-        self.net = MLP(in_features=self.n_features, out_features=state_dim, num_cells=list(self.hidden),
-                       activation_class=nn.ReLU)
+        if self.n_context:  # zeros: the meta update learns its initial value along with the weights
+            self.context = nn.Parameter(torch.zeros(self.n_context))
+        self.net = MLP(in_features=self.n_features + self.n_context, out_features=state_dim,
+                       num_cells=list(self.hidden), activation_class=nn.ReLU)
         self.register_buffer("in_mean", torch.zeros(self.n_features))
         self.register_buffer("in_std", torch.ones(self.n_features))
         self.register_buffer("out_mean", torch.zeros(state_dim))
@@ -187,7 +195,10 @@ class DynamicsModel(nn.Module):
     # ----- prediction ----------------------------------------------------------------------------
     def normalized_delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """The MLP's output: the normalized egocentric next-state difference for a window with action."""
-        return self.net((self.features(window, road) - self.in_mean) / self.in_std)
+        x = (self.features(window, road) - self.in_mean) / self.in_std
+        if self.n_context:
+            x = torch.cat([x, self.context.expand(*x.shape[:-1], self.n_context)], dim=-1)
+        return self.net(x)
 
     def delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         return self.normalized_delta(window, road) * self.out_std + self.out_mean
@@ -227,6 +238,9 @@ class DynamicsModel(nn.Module):
         (how :class:`~pernav.trainer.ensemble.EnsembleTrainer` trains all members in one pass)."""
         E = params.shape[0]
         x = (self.features(window, road) - params["in_mean"].unsqueeze(1)) / params["in_std"].unsqueeze(1)  # [E, N, F]
+        if self.n_context:
+            context = params["context"].reshape(E, *(1,) * (x.ndim - 2), self.n_context)
+            x = torch.cat([x, context.expand(*x.shape[:-1], self.n_context)], dim=-1)
         for name, layer in self.net.named_children():
             if isinstance(layer, nn.Linear):
                 weight, bias = params["net", name, "weight"], params["net", name, "bias"]
@@ -253,4 +267,4 @@ class DynamicsModel(nn.Module):
     def config(self) -> dict:
         """Constructor arguments (saved with checkpoints)."""
         return {"state_dim": self.state_dim, "n_actions": self.n_actions, "K": self.K, "hidden": list(self.hidden),
-                "road": self.road}
+                "road": self.road, "context": self.n_context}

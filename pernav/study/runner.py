@@ -63,7 +63,7 @@ class Learner:
         self.buffers = RoundBuffers(L=cfg.train.L, seed=derive_seed(cfg.seed, town, name, "buffers"))
         self.trainer = EnsembleTrainer(
             lambda: DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden,
-                                  road=cfg.train.road), self.buffers,
+                                  road=cfg.train.road, context=cfg.train.context), self.buffers,
             cfg.train, size=cfg.train.ensemble, seed=derive_seed(cfg.seed, town, "init", 21 if self.n_actions == 21 else 7))
         self.model = self.trainer.model
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(self.model)), cfg.planner, self.n_actions)

@@ -42,7 +42,8 @@ def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
 # saved study.json that lacks one of these ran with that value. Any other missing option (e.g. train.backtrack,
 # whose default changed what an older study did) makes the folder a different study.
 ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau": "explore", "calibration": 0, "train.ensemble": 1,
-                                 "train.personal_updates": 0, "train.personal_replay": 0.0, "train.road": 0}
+                                 "train.personal_updates": 0, "train.personal_replay": 0.0, "train.road": 0,
+                                 "train.context": 0}
 
 
 def _difference(saved: dict[str, Any], current: dict[str, Any], prefix: str = "") -> str | None:

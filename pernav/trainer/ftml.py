@@ -66,6 +66,9 @@ class TrainConfig:
     # route points ahead (6 m apart) the model also reads, at most ROAD_MAX (16); 0: none, the paper's model.
     # The driver's next second depends on where the road turns, which the state alone does not tell
     road: int = 0
+    # size of a learned context vector the model reads (DynamicsModel(context=n)); with one, U adapts only it
+    # (CAVIA) and alpha is its step. 0: none, U steps every weight (the paper)
+    context: int = 0
     ensemble: int = 1  # dynamics models trained side by side (the planner's uncertainty)
     # 0: adapt with U, one gradient step on tau (the paper). n > 0: adapt by n maximum-likelihood updates (fresh
     # Adam, lr) from the meta parameters on the round user's own drives, tau and calibration (EnsembleTrainer.fine_tuned)
