@@ -128,3 +128,40 @@ def test_pool_seeds_pairs_two_protocols_on_the_same_episodes(tmp_path):
     run = subprocess.run([sys.executable, str(ROOT / "recipes" / "pool_seeds.py"), str(tmp_path / "r0.json"),
                           "--against", str(tmp_path / "r2.json"), "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 2 and "not paired" in run.stderr and not out.exists()
+
+
+def _round(label: str, costs: dict[str, list[float]], collisions: dict[str, int] | None = None) -> dict:
+    """One online Town1 round: per method, one episode per route (``collisions`` on the first episode)."""
+    collisions = collisions or {}
+    return {"label": label, "phase": "online", "towns": {"Town1": {
+        m: {"episodes": [{"route": r, "tracking_cost": c, "collisions": collisions.get(m, 0) if r == 0 else 0}
+                         for r, c in enumerate(v)]} for m, v in costs.items()}}}
+
+
+def test_criterion_odds_checks_each_clause_per_subset(tmp_path):
+    odds = _recipe("criterion_odds")
+    head = {"explore": [100.0, 110.0, 120.0], "oracle": [50.0, 55.0, 60.0], "sysid": [95.0, 105.0, 115.0]}
+    flat = {"explore": [100.0, 100.0, 100.0], "oracle": [99.0, 99.0, 99.0], "sysid": [100.0, 100.0, 100.0]}
+
+    def study(seed: int, adapt_head: list[float], adapt_flat: list[float], crash: int = 0) -> dict:
+        return {"config": {"seed": seed}, "iterations": [
+            _round("Online 0", {**head, "adapt": adapt_head}, {"adapt": crash}),
+            _round("Online 1", {**flat, "adapt": adapt_flat})]}
+
+    good = study(0, [60.0, 65.0, 70.0], [100.0, 101.0, 99.0])  # closes 80 % of the gap, CI clear of zero
+    above_sysid = study(1, [96.0, 106.0, 116.0], [100.0, 100.0, 100.0])  # below explore, above sysid, 8 % of gap
+    crashes = study(2, [60.0, 65.0, 70.0], [100.0, 101.0, 99.0], crash=1)  # as good, one collision more
+    slow_flat = study(3, [60.0, 65.0, 70.0], [115.0, 115.0, 115.0])  # 15 % above explore where no headroom
+    got = odds.odds([good, above_sysid, crashes, slow_flat], "adapt", size=1)["share"]["both towns"]
+    assert got["all"] == 0.25 and got["below"] == 0.75 and got["gap"] == 0.75 and got["collisions"] == 0.75
+    assert got["flat_each"] == 0.75 and got["all_strict"] == 0.25
+    pooled = odds.odds([good, crashes, slow_flat], "adapt", size=3)  # one subset: the collision counts pooled
+    assert pooled["subsets"] == 1 and pooled["share"]["Town1"]["collisions"] == 0.0 and pooled["share"]["Town1"]["ci"] == 1.0
+    oracle = odds.odds([good, above_sysid], "oracle", size=1)["share"]["Town1"]
+    assert oracle["gap"] == 1.0 and oracle["below"] == 1.0
+    with pytest.raises(ValueError, match="--size must be between 1 and the number of studies"):
+        odds.odds([good], "adapt", size=2)
+    (tmp_path / "s.json").write_text(json.dumps(good))
+    run = subprocess.run([sys.executable, str(ROOT / "recipes" / "criterion_odds.py"), str(tmp_path / "s.json"),
+                          "--method", "hindsight"], capture_output=True, text=True)
+    assert run.returncode == 2 and "'hindsight' is not in" in run.stderr and "Traceback" not in run.stderr
