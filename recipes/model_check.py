@@ -8,7 +8,10 @@ the true and the predicted divergence, and the mean absolute error, for:
 
 * ``meta``: adapt's final meta model from a study (``--study DIR``, its Town checkpoint);
 * ``adapted``: that model after one adaptation step on one trajectory of the driver (as in the study): an explore
-  drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option);
+  drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option).
+  The step is the study's own test-time ``U`` (its ``alpha``, ``L``, gradient clip and backtracking, from its
+  study.json; a model with a context adapts only it); ``--adapt-step fixed``: the fixed step ``alpha`` without
+  clip or backtracking (how the figures in docs/planning.md's model check were made, alpha 0.01);
 * ``personal``: the meta model fine-tuned as a study with personal updates adapts: ``--personal-updates`` (100)
   updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).
@@ -113,6 +116,8 @@ def main() -> None:
                     help="the adaptation trajectory's policy, as the study's tau option (default explore)")
     ap.add_argument("--calibration", type=int, default=4, help="re-timed drives of the personal model (default 4)")
     ap.add_argument("--personal-updates", type=int, default=100, help="updates of the personal model (default 100)")
+    ap.add_argument("--adapt-step", choices=["study", "fixed"], default="study",
+                    help="U as the study adapts at test time (default), or its fixed step alpha unclipped")
     args = ap.parse_args()
     torch.set_num_threads(1)
     study = Path(args.study)
@@ -120,6 +125,10 @@ def main() -> None:
         print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
         sys.exit(2)
     meta, members = final_models(study, args.town)
+    saved = json.loads((study / "study.json").read_text())["train"]
+    step = {"alpha": saved["alpha"], "L": saved["L"]}
+    if args.adapt_step == "study":
+        step.update(max_norm=saved.get("max_grad_norm"), backtrack=saved.get("backtrack"))
     rows, pooled = {}, {}
     for driver in args.drivers:
         policy = RetimedExplore(seed=77) if args.tau == "retimed" else explore_module()
@@ -128,7 +137,7 @@ def main() -> None:
         for state in members:  # U(P, tau) of every member, as the study adapts
             meta.load_state_dict(state)
             params.append(meta_parameters(meta).detach().clone())
-            adapted.append(adapt(meta, tau, alpha=0.01, L=5, first_order=True).detach())
+            adapted.append(adapt(meta, tau, first_order=True, **step).detach())
         own = per_driver_model(driver, args.town, meta)
         imagined = ImaginedNavigationEnv(make_world_model(meta))
         models = {"meta": (imagined, params), "adapted": (imagined, adapted),
