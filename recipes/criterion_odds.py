@@ -63,6 +63,9 @@ def clauses(iterations: list[list[dict[str, Any]]], method: str) -> dict[str, di
     >>> clauses([[rnd]], "adapt")["T"]["all"]
     True
     """
+    keep = {"explore", "oracle", "sysid", method}  # compare() bootstraps every method: only the ones checked
+    iterations = [[{**it, "towns": {t: {m: v for m, v in ms.items() if m in keep} for t, ms in it["towns"].items()}}
+                   for it in its] for its in iterations]
     out: dict[str, dict[str, bool]] = {}
     for town, methods in compare(iterations).items():
         fig = methods[method]
