@@ -153,14 +153,15 @@ def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_dra
     assert online == [e.label for e in load_schedule(RECIPE_CONFIGS / "headroom.yaml") if e.phase == "online"]
 
 
-@pytest.mark.parametrize("n", [6, 12])
-def test_default_prior_schedules_are_the_default_schedule_with_offline_draws(n):
-    """``default_prior{n}.yaml`` (docs/planning.md) is the default preset's rounds, unchanged and in order, with
-    the first ``n`` draws of ``Population(seed=1)`` as offline rounds after the default's offline ones."""
-    entries = load_schedule(RECIPE_CONFIGS / f"default_prior{n}.yaml")
+@pytest.mark.parametrize(("name", "n", "seed"), [("default_prior6", 6, 1), ("default_prior12", 12, 1),
+                                                 ("default_prior6b", 6, 2)])
+def test_default_prior_schedules_are_the_default_schedule_with_offline_draws(name, n, seed):
+    """``default_prior*.yaml`` (docs/planning.md) are the default preset's rounds, unchanged and in order, with
+    the first ``n`` draws of ``Population(seed)`` as offline rounds after the default's offline ones."""
+    entries = load_schedule(RECIPE_CONFIGS / f"{name}.yaml")
     prior = [e for e in entries if not isinstance(e.driver, str)]
     assert [e for e in entries if isinstance(e.driver, str)] == preset("default").schedule
-    assert [(e.profile(), e.context()) for e in prior] == population_samples(n, seed=1)
+    assert [(e.profile(), e.context()) for e in prior] == population_samples(n, seed=seed)
     assert all(e.phase == "offline" for e in prior)
     first_online = next(i for i, e in enumerate(entries) if e.phase == "online")
     assert all(entries.index(e) < first_online for e in prior)
