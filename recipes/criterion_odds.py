@@ -45,8 +45,8 @@ def _flat_each(iterations: list[list[dict[str, Any]]], town: str, method: str) -
     for its in iterations:
         for it in its:
             methods = it["towns"].get(town, {})
-            if it["phase"] != "online" or method not in methods:
-                continue
+            if it["phase"] != "online" or not {"explore", "oracle", method} <= set(methods):
+                continue  # as compare(): a round without explore (or here the oracle) is not compared
             mean = {m: float(np.mean([e["tracking_cost"] for e in methods[m]["episodes"]]))
                     for m in ("explore", "oracle", method)}
             if mean["oracle"] >= (1 - HEADROOM) * mean["explore"] and mean[method] > 1.1 * mean["explore"]:
@@ -68,9 +68,13 @@ def clauses(iterations: list[list[dict[str, Any]]], method: str) -> dict[str, di
                    for it in its] for its in iterations]
     out: dict[str, dict[str, bool]] = {}
     for town, methods in compare(iterations).items():
+        needs = {method, "oracle"} | ({"sysid"} if method not in ("sysid", "oracle") else set())
+        if not needs <= set(methods):
+            raise ValueError(f"{town}: the criterion needs {', '.join(sorted(needs))}; the studies have "
+                             f"{', '.join(sorted(methods)) or 'no method but explore'}")
         fig = methods[method]
         rivals = [fig["explore_tracking_cost"]] + ([methods["sysid"]["tracking_cost"]]
-                                                   if method not in ("sysid", "oracle") and "sysid" in methods else [])
+                                                   if method not in ("sysid", "oracle") else [])
         gap = fig.get("gap_closed_headroom", {"mean": float("nan")})["mean"]
         c = {"below": all(fig["tracking_cost"] < r for r in rivals),
              "ci": fig["explore_minus_method"]["low"] > 0,
@@ -111,9 +115,10 @@ def main() -> None:
     args = ap.parse_args()
     results = _load(args.studies)
     missing = [s for s, r in zip(args.studies, results, strict=True)
-               if not any(args.method in t for it in r["iterations"] for t in it["towns"].values())]
+               if not all(args.method in t for it in r["iterations"] if it["phase"] == "online"
+                          for t in it["towns"].values())]
     if missing:
-        print(f"error: --method {args.method!r} is not in {', '.join(missing)}", file=sys.stderr)
+        print(f"error: --method {args.method!r} is not in every online round of {', '.join(missing)}", file=sys.stderr)
         sys.exit(2)
     try:
         got = odds(results, args.method, args.size)

@@ -10,8 +10,8 @@ the true and the predicted divergence, and the mean absolute error, for:
 * ``adapted``: that model after one adaptation step on one trajectory of the driver (as in the study): an explore
   drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option).
   The step is the study's own test-time ``U`` (its ``alpha``, ``L``, gradient clip and backtracking, from its
-  study.json; a model with a context adapts only it); ``--adapt-step fixed``: the fixed step ``alpha`` without
-  clip or backtracking (how the figures in docs/planning.md's model check were made, alpha 0.01);
+  study.json; a model with a context adapts only it); ``--adapt-step fixed``: the study's ``alpha`` as a fixed step,
+  without clip or backtracking (for the default's alpha 0.01, how docs/planning.md's model checks were made);
 * ``personal``: the meta model fine-tuned as a study with personal updates adapts: ``--personal-updates`` (100)
   updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).
@@ -137,7 +137,9 @@ def main() -> None:
         for state in members:  # U(P, tau) of every member, as the study adapts
             meta.load_state_dict(state)
             params.append(meta_parameters(meta).detach().clone())
-            adapted.append(adapt(meta, tau, first_order=True, **step).detach())
+            # clone: with a context U replaces only it, and the rest aliases meta's tensors, which the next
+            # member's load_state_dict overwrites in place
+            adapted.append(adapt(meta, tau, first_order=True, **step).detach().clone())
         own = per_driver_model(driver, args.town, meta)
         imagined = ImaginedNavigationEnv(make_world_model(meta))
         models = {"meta": (imagined, params), "adapted": (imagined, adapted),

@@ -152,16 +152,25 @@ def test_criterion_odds_checks_each_clause_per_subset(tmp_path):
     above_sysid = study(1, [96.0, 106.0, 116.0], [100.0, 100.0, 100.0])  # below explore, above sysid, 8 % of gap
     crashes = study(2, [60.0, 65.0, 70.0], [100.0, 101.0, 99.0], crash=1)  # as good, one collision more
     slow_flat = study(3, [60.0, 65.0, 70.0], [115.0, 115.0, 115.0])  # 15 % above explore where no headroom
-    got = odds.odds([good, above_sysid, crashes, slow_flat], "adapt", size=1)["share"]["both towns"]
-    assert got["all"] == 0.25 and got["below"] == 0.75 and got["gap"] == 0.75 and got["collisions"] == 0.75
-    assert got["flat_each"] == 0.75 and got["all_strict"] == 0.25
+    # two rounds without headroom, 20 % above and 15 % below explore: within 10 % pooled, not round by round
+    uneven = study(4, [60.0, 65.0, 70.0], [120.0, 120.0, 120.0])
+    uneven["iterations"] += [_round("Online 2", {**flat, "adapt": [85.0, 85.0, 85.0]})] + [
+        _round(f"Online {k}", {**head, "adapt": [60.0, 65.0, 70.0]}) for k in (3, 4)]  # the CI clear of zero
+    got = odds.odds([good, above_sysid, crashes, slow_flat, uneven], "adapt", size=1)["share"]["both towns"]
+    assert got["all"] == 0.4 and got["below"] == 0.8 and got["gap"] == 0.8 and got["collisions"] == 0.8
+    assert got["flat"] == 0.8 and got["flat_each"] == 0.6 and got["all_strict"] == 0.2
     pooled = odds.odds([good, crashes, slow_flat], "adapt", size=3)  # one subset: the collision counts pooled
     assert pooled["subsets"] == 1 and pooled["share"]["Town1"]["collisions"] == 0.0 and pooled["share"]["Town1"]["ci"] == 1.0
     oracle = odds.odds([good, above_sysid], "oracle", size=1)["share"]["Town1"]
     assert oracle["gap"] == 1.0 and oracle["below"] == 1.0
     with pytest.raises(ValueError, match="--size must be between 1 and the number of studies"):
         odds.odds([good], "adapt", size=2)
+    no_sysid = {**good, "iterations": [{**it, "towns": {"Town1": {m: v for m, v in it["towns"]["Town1"].items()
+                                                                  if m != "sysid"}}} for it in good["iterations"]]}
+    with pytest.raises(ValueError, match="needs adapt, oracle, sysid"):
+        odds.odds([no_sysid], "adapt", size=1)
     (tmp_path / "s.json").write_text(json.dumps(good))
     run = subprocess.run([sys.executable, str(ROOT / "recipes" / "criterion_odds.py"), str(tmp_path / "s.json"),
                           "--method", "hindsight"], capture_output=True, text=True)
-    assert run.returncode == 2 and "'hindsight' is not in" in run.stderr and "Traceback" not in run.stderr
+    assert run.returncode == 2 and "'hindsight' is not in every online round" in run.stderr
+    assert "Traceback" not in run.stderr
