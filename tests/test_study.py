@@ -154,7 +154,7 @@ def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_dra
 
 
 @pytest.mark.parametrize(("name", "n", "seed"), [("default_prior6", 6, 1), ("default_prior12", 12, 1),
-                                                 ("default_prior6b", 6, 2)])
+                                                 ("default_prior6b", 6, 2), ("default_prior6c", 6, 3)])
 def test_default_prior_schedules_are_the_default_schedule_with_offline_draws(name, n, seed):
     """``default_prior*.yaml`` (docs/planning.md) are the default preset's rounds, unchanged and in order, with
     the first ``n`` draws of ``Population(seed)`` as offline rounds after the default's offline ones."""
