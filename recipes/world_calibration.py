@@ -37,6 +37,7 @@ from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE
 from pernav.world.towns import TOWN_NAMES
 
 POLICIES = ("explore", "oracle")
+EVENTS = ("swerves", "harsh_brakes", "forgotten", "discarded", "misunderstood", "ignored", "traffic_collisions")
 _ENVS: dict = {}
 
 
@@ -51,8 +52,10 @@ def _drive(task: tuple) -> list[dict]:
     out = []
     for policy in POLICIES:
         m = run_episode(env, policy, route, ep_seed, options=options)
+        ev = env.world.events
         out.append({"town": town, "round": i, "label": label, "seed": seed, "episode_seed": ep_seed,
-                    "policy": policy, **{k: (bool(v) if k == "completed" else float(v)) for k, v in m.items()}})
+                    "policy": policy, **{k: (bool(v) if k == "completed" else float(v)) for k, v in m.items()},
+                    **{k: getattr(ev, k) for k in EVENTS}})
     return out
 
 

@@ -124,6 +124,12 @@ class Context:
         return dataclasses.asdict(self)
 
 
+#: coefficient of variation of one driver's reaction time from one prompt to the next: brake reaction to an
+#: expected signal 1.25 s with SD 0.46 s (Green 2000, "How long does it take to stop?"; Johansson & Rumar
+#: 1971), i.e. SD ~0.37 x the mean; the spread grows with the mean (slow drivers are also the variable ones)
+REACTION_CV = 0.37
+
+
 @dataclass(frozen=True)
 class VehicleModel:
     """Physical vehicle: size, steering limit, braking and grip (lateral acceleration limit)."""
@@ -165,6 +171,23 @@ class Driver:
     speed_misjudgement: float  # perceived / true speed when planning braking (top view < 1)
     keyboard: bool
 
+    @property
+    def reaction_sd(self) -> float:
+        """SD of the reaction time from one prompt to the next (s): ``REACTION_CV`` x the mean."""
+        return REACTION_CV * self.reaction_time
+
+    def reaction_draw(self, z: float) -> float:
+        """One prompt's reaction time from a standard normal draw ``z``: lognormal with mean
+        ``reaction_time`` and SD ``reaction_sd`` (reaction times are right-skewed), capped at 3x the mean.
+
+        >>> d = resolve(DriverProfile(), Context())
+        >>> round(d.reaction_draw(0.0), 3) < d.reaction_time < d.reaction_draw(1.0)
+        True
+        """
+        sigma = math.sqrt(math.log1p(REACTION_CV**2))
+        mu = math.log(self.reaction_time) - sigma**2 / 2
+        return min(math.exp(mu + sigma * z), 3.0 * self.reaction_time)
+
     def understanding(self, playback: str) -> float:
         """Probability that an instruction played at ``playback`` speed is understood."""
         if playback == "slower":
@@ -186,6 +209,11 @@ _CAMERA = {  # sight multiplier, speed misjudgement, added decision time (s)
 }
 
 
+# the long, heavy truck: slower through turns, gentler comfortable braking, and the branch chosen earlier
+# (a long vehicle is set up for a turn before it: lane position, swing out)
+TRUCK_TURN_SPEED, TRUCK_DECEL, TRUCK_DECISION = 0.75, 0.75, 0.8
+
+
 def resolve(profile: DriverProfile, context: Context) -> Driver:
     """Apply the context modifiers to a profile (SPEC.md §2 table)."""
     sight, speed_mult, extra_rt = _VISUAL[context.visual]
@@ -199,12 +227,12 @@ def resolve(profile: DriverProfile, context: Context) -> Driver:
         vehicle=veh,
         reaction_time=profile.reaction_time + extra_rt,
         speed_factor=profile.speed_factor * speed_mult,
-        turn_speed=profile.turn_speed * (0.85 if truck else 1.0),
-        decision_time=max(0.8, profile.decision_time + extra_dt + (0.3 if truck else 0.0)),
+        turn_speed=profile.turn_speed * (TRUCK_TURN_SPEED if truck else 1.0),
+        decision_time=max(0.8, profile.decision_time + extra_dt + (TRUCK_DECISION if truck else 0.0)),
         memory=profile.memory,
         steering_tau=profile.steering_tau * (1.25 if truck else 1.0) * (1.15 if keyboard else 1.0),
         comfort_accel=profile.comfort_accel * veh.accel_scale,
-        comfort_decel=profile.comfort_decel * (0.85 if truck else 1.0),
+        comfort_decel=profile.comfort_decel * (TRUCK_DECEL if truck else 1.0),
         time_headway=profile.time_headway,
         compliance=profile.compliance,
         speech_tolerance=profile.speech_tolerance,

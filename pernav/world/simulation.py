@@ -45,6 +45,10 @@ from pernav.world.towns import (
     turn_direction,
 )
 
+#: the world's version: 2 adds per-prompt reaction times, a following car with a perception delay, gap
+#: acceptance in lane changes and the truck's earlier set-up (docs/simulator.md, "World v2")
+WORLD_VERSION = 2
+
 # --------------------------------------------------------------------------------------------------
 # Instructions
 
@@ -141,10 +145,13 @@ class PathCar:
         self.s = lane.local_coordinates(self.position)[0]
         while self.s > lane.length and len(self.path) > 1:
             self.s -= lane.length
-            self.path.pop(0)
+            self.passed(self.path.pop(0))
             lane = town.lane(self.path[0])
             self.s = lane.local_coordinates(self.position)[0]
         self.lane_index, self.lane = self.path[0], lane
+
+    def passed(self, lane: LaneIndex) -> None:
+        """Called with each lane the car leaves (a hook: the driver's car keeps a trail)."""
 
     def distance_along(self, k: int) -> float:
         """Distance from the car to the start of ``path[k]``."""
@@ -245,7 +252,8 @@ class RightOfWay:
 class TrafficCar(PathCar, IDMVehicle):
     """IDM traffic (highway-env ``IDMVehicle``) on a random lane path, with right-of-way."""
 
-    def __init__(self, world: World, lane: LaneIndex, s: float, speed: float, desired: float) -> None:
+    def __init__(self, world: World, lane: LaneIndex, s: float, speed: float, desired: float,
+                 follow: DriverCar | None = None, headway: float = 1.5, reaction: float = 0.0) -> None:
         town = world.town
         ln = town.lane(lane)
         super().__init__(world.road, ln.position(s, 0.0), ln.heading_at(s), speed, target_lane_index=lane,
@@ -255,12 +263,22 @@ class TrafficCar(PathCar, IDMVehicle):
         self.s = s
         self.desired = desired
         self.stuck_time = 0.0
+        # a follower drives behind the navigated car on its lanes, with its own headway and a
+        # perception-reaction delay (the IDM with reaction time: Treiber, Kesting & Helbing 2006)
+        self.follow = follow  # the car it follows (perceived late), whose lanes it takes while ``tracking``
+        self.tracking = follow is not None
+        self.headway = headway
+        self.lag = max(int(round(reaction / world.dt)), 0)
+        self.odometer = 0.0
+        self.seen: list[tuple[float, float, float]] = []  # (odometer, gap, its speed) of the followed car
         self.extend()
 
     def on_state_update(self) -> None:  # highway-env searches every lane here; we follow the path
         pass
 
     def extend(self) -> None:
+        if self.tracking and self._extend_following():
+            return
         succ = self.world.town.successors
         rng = self.world.rng
         while len(self.path) < 5:
@@ -271,6 +289,33 @@ class TrafficCar(PathCar, IDMVehicle):
                 stay = [o for o in options if o not in exits]
                 options = exits if (exits and rng.random() < 0.45) or not stay else stay
             self.path.append(options[int(rng.integers(len(options)))])
+
+    def _extend_following(self) -> bool:
+        """Extend the path with the lanes the followed car took after ours; False (and stops
+        tracking it) once the followed car is on lanes this car's path does not lead to."""
+        seq = self.follow.trail + self.follow.path
+        last = self.path[-1]
+        idx = max((i for i, lane in enumerate(seq) if lane == last), default=None)
+        if idx is None:
+            self.tracking = False
+            return False
+        self.path.extend(seq[idx + 1: idx + 6 - len(self.path)])
+        return True
+
+    def perceived(self, gap: float, lead_v: float, lead_a: float) -> tuple[float, float]:
+        """The followed car as this driver sees it: as it was a reaction time ago, extrapolated with the
+        speed and deceleration it had then (the anticipation of Treiber's Human Driver Model). A car ahead
+        that brakes steadily is seen where it is; a sudden hard brake is seen a reaction time late."""
+        self.seen = [*self.seen[-self.lag:], (self.odometer, gap, lead_v, lead_a)]
+        if len(self.seen) <= self.lag:
+            return gap, lead_v
+        odo, gap_then, v, a = self.seen[0]
+        t = self.lag * self.world.dt
+        if a < 0 and v + a * t < 0:  # seen to stop within the reaction time
+            moved, v_now = v * v / (-2 * a), 0.0
+        else:
+            moved, v_now = v * t + 0.5 * a * t * t, v + a * t
+        return gap_then - (self.odometer - odo) + moved, v_now
 
     def lane_speed(self, lane) -> float:
         limit = float(lane.speed_limit)
@@ -290,8 +335,10 @@ class TrafficCar(PathCar, IDMVehicle):
                 acc = min(acc, -need)
         leader, gap = world.leader_of(self)
         if leader is not None:
-            closing = self.speed - float(np.dot(leader.velocity, self.direction))
-            acc = min(acc, idm_acceleration(self.speed, desired, gap, closing, 1.5, 2.5, 4.0))
+            lead_v = float(np.dot(leader.velocity, self.direction))
+            if leader is self.follow and self.lag:
+                gap, lead_v = self.perceived(gap, lead_v, leader.accel)
+            acc = min(acc, idm_acceleration(self.speed, desired, gap, self.speed - lead_v, self.headway, 2.5, 4.0))
         stop = world.stop_line(self)
         if stop is not None:
             acc = min(acc, idm_acceleration(self.speed, desired, stop, self.speed, 1.0, 2.5, 4.0))
@@ -301,6 +348,7 @@ class TrafficCar(PathCar, IDMVehicle):
     def step(self, dt: float) -> None:
         Vehicle.step(self, dt)
         self.speed = max(self.speed, 0.0)
+        self.odometer += self.speed * dt
         self.stuck_time = self.stuck_time + dt if self.speed < 0.2 else 0.0
 
 
@@ -338,9 +386,13 @@ class DriverCar(PathCar, Vehicle):
         self.last_choice: dict[str, str] = {}  # decision node -> movement taken
         self.box: str | None = None  # junction whose lanes the car is on
         self.approach_options: dict[str, dict[str, list[LaneIndex]]] = {}  # movements seen at commit
+        self.trail: list[LaneIndex] = []  # the last lanes the car left (a follower drives along them)
 
     def on_state_update(self) -> None:
         pass
+
+    def passed(self, lane: LaneIndex) -> None:
+        self.trail = [*self.trail[-7:], lane]
 
     # ----- hearing ----------------------------------------------------------------------------
     def hear(self, instruction: int, playback: str, now: float) -> None:
@@ -348,7 +400,8 @@ class DriverCar(PathCar, Vehicle):
         if instruction == 0:
             return
         d, ev = self.driver, self.world.events
-        heard, swapped, complied = self.world.driver_rng.random(3)  # three draws per play, always
+        heard, swapped, complied = self.world.driver_rng.random(3)  # four draws per play, always
+        reaction = d.reaction_draw(float(self.world.driver_rng.standard_normal()))  # this prompt's reaction
         if heard > d.understanding(playback):
             if instruction in (1, 2, 3, 4) and swapped < 0.5:  # misheard left <-> right
                 instruction = {1: 2, 2: 1, 3: 4, 4: 3}[instruction]
@@ -359,7 +412,7 @@ class DriverCar(PathCar, Vehicle):
         if complied > d.compliance:
             ev.ignored += 1
             return
-        active = now + audio_duration(instruction, playback) + d.reaction_time
+        active = now + audio_duration(instruction, playback) + reaction
         if instruction in (1, 2):  # a new turn instruction replaces older ones
             self.heard = [h for h in self.heard if h.instruction not in (1, 2, 6)]
         elif instruction in (3, 4):
@@ -465,7 +518,7 @@ class DriverCar(PathCar, Vehicle):
                 choice = "straight" if "straight" in options else sorted(options)[int(pick * len(options))]
         self.approach_options[node] = options
         lanes = options[choice]
-        if len(lanes) == 2:  # lane change needed right before the junction
+        if len(lanes) == 2:  # a hurried lane change right before the junction: no time to wait for a gap
             self.path[-1] = lanes[0]
             lanes = lanes[1:]
         self.path.extend(lanes)
@@ -557,6 +610,8 @@ class DriverCar(PathCar, Vehicle):
         if prep is not None and town.lane_junction.get(self.path[0]) is None:
             acc = min(acc, idm_acceleration(v, 0.75 * cruise, np.inf, 0, 1, d.comfort_accel, d.comfort_decel))
             self.lane_for(prep.direction)
+        elif self.active(now, (1, 2)) is not None:  # a turn heard without its "prepare": get into its lane
+            self.lane_for(self.active(now, (1, 2)).direction)
         need = max(needs, default=0.0)
         harsh_limit = d.vehicle.max_decel
         if need > 0.55 * d.comfort_decel:
@@ -618,8 +673,22 @@ class DriverCar(PathCar, Vehicle):
         if n < 2:
             return
         want = 0 if direction == "left" else n - 1
-        if cur[2] != want and len(self.path) == 1:
-            self.path[0] = (cur[0], cur[1], want)
+        target = (cur[0], cur[1], want)
+        if cur[2] != want and len(self.path) == 1 and self.gap_free(target):
+            self.path[0] = target
+
+    def gap_free(self, lane: LaneIndex) -> bool:
+        """Gap acceptance before a lane change in time: no car beside, none just ahead, none closing in
+        from behind within its 1 s of travel (a driver with time looks and waits for a gap)."""
+        half = self.LENGTH / 2
+        for other in self.world.traffic:
+            if other.path[0] != lane:
+                continue
+            ds = other.s - self.s
+            room = half + other.LENGTH / 2 + 2.0
+            if -room - max(other.speed - self.speed, 0.0) - 0.5 * other.speed < ds < room:
+                return False
+        return True
 
     def step(self, dt: float) -> None:
         """Kinematic bicycle with a friction circle: braking hard leaves little grip for turning,
@@ -677,6 +746,15 @@ class World:
     """A town, a driver's car on a route, traffic around it, right-of-way and event counters."""
 
     BOX_PAVING = 0.75  # m of paving beyond the connector lanes' edges inside a junction box
+    # A car following the navigated one (world v2): on town streets someone is often right behind you.
+    # Chance per second that one joins when none follows; its time headway (urban car following: a large
+    # share of headways below 1 s, Vogel 2003, Accid. Anal. Prev. 35) and its perception-reaction delay to
+    # the braking of the car ahead (expected ~0.75 s, unexpected ~1.25 s, surprise ~1.5 s and longer when
+    # looking elsewhere: Green 2000, Transp. Hum. Factors 2) are drawn per follower.
+    FOLLOW_RATE = 0.2
+    FOLLOW_HEADWAY = (0.5, 1.2)
+    FOLLOW_REACTION = (1.0, 2.0)
+    FOLLOW_DROP = 80.0  # m behind the navigated car beyond which a follower is just traffic
 
     def __init__(self, town: Town, driver: Driver, route: Route, seed: int = 0, n_traffic: int = 8,
                  frequency: int = 10) -> None:
@@ -686,6 +764,8 @@ class World:
         # policies driving the same seed face the same draws for the k-th instruction they play
         self.driver_rng = np.random.default_rng([seed, 1])
         self.guess_rng = np.random.default_rng([seed, 2])  # the driver's guesses at junctions
+        self.follow_rng = np.random.default_rng([seed, 3])  # followers: when one joins, its headway, delay
+        self.follower: TrafficCar | None = None
         self.road = Road(network=town.network, np_random=np.random.RandomState(seed))
         self.dt = 1.0 / frequency
         self.time = 0.0
@@ -727,6 +807,7 @@ class World:
             self.rng = np.random.default_rng([seed, 10])
             self.driver_rng = np.random.default_rng([seed, 11])
             self.guess_rng = np.random.default_rng([seed, 12])
+            self.follow_rng = np.random.default_rng([seed, 13])
             self.road.np_random = np.random.RandomState(seed & 0x7FFFFFFF)
 
     # ----- traffic population -----------------------------------------------------------------
@@ -754,12 +835,42 @@ class World:
         self.traffic.remove(car)
         self.road.vehicles.remove(car)
 
+    def spawn_follower(self) -> None:
+        """A car joins behind the navigated one on its lane, at its headway and the same speed."""
+        ego, town, rng = self.ego, self.town, self.follow_rng
+        headway, reaction = rng.uniform(*self.FOLLOW_HEADWAY), rng.uniform(*self.FOLLOW_REACTION)
+        lane_i = ego.path[0]
+        if town.lane_junction.get(lane_i) is not None or ego.speed < 3.0:
+            return
+        lane = town.lane(lane_i)
+        s = ego.s - (2.0 + ego.speed * headway + (ego.LENGTH + Vehicle.LENGTH) / 2)
+        if s < 2.0:
+            return
+        p = lane.position(s, 0.0)
+        if any(np.linalg.norm(p - c.position) < 10.0 for c in self.traffic):
+            return
+        car = TrafficCar(self, lane_i, s, ego.speed, float(lane.speed_limit), follow=ego, headway=headway,
+                         reaction=reaction)
+        self.traffic.append(car)
+        self.road.vehicles.append(car)
+        self.follower = car
+
+    def maintain_follower(self) -> None:
+        f = self.follower
+        if f is not None and (f not in self.traffic or not f.tracking
+                              or np.linalg.norm(f.position - self.ego.position) > self.FOLLOW_DROP):
+            f.tracking = False
+            self.follower = None
+        if self.follower is None and self.FOLLOW_RATE > 0 and self.follow_rng.random() < self.FOLLOW_RATE:
+            self.spawn_follower()
+
     def maintain_traffic(self) -> None:
         for car in list(self.traffic):
             far = np.linalg.norm(car.position - self.ego.position) > 300.0
             if far or car.stuck_time > 40.0 or car.crashed:
                 self.remove(car)
-        while len(self.traffic) < self.n_traffic:
+        self.maintain_follower()
+        while sum(c is not self.follower for c in self.traffic) < self.n_traffic:
             before = len(self.traffic)
             self.spawn_traffic()
             if len(self.traffic) == before:
