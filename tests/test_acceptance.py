@@ -17,11 +17,12 @@ PROFILES = {
 # SPEC.md §3 users whose timing differs from the population average, and for whom the oracle beats
 # explore by the criterion of recipes/oracle_vs_explore.py (paired episodes, fixed before the runs;
 # figures in docs/simulator.md). The fast keyboard driver (user4) and the distracted one (user6) do
-# not meet it: explore's timing already suits them (docs/simulator.md, "Known gaps").
+# not meet it: explore's timing already suits them (docs/simulator.md, "Known gaps"). user5 in fog in the
+# truck met it on world v1 and ties on world v2 (oracle cheaper on 10, dearer on 10 of these 20 episodes,
+# measured once on the frozen world): it is no longer among the users this test claims.
 ATYPICAL = {
     "slow_fog_truck": ("user3", {"vehicle": "cybertruck", "visual": "foggy"}),
     "elderly_like": ("user3", {}),
-    "cautious_fog_truck": ("user5", {"vehicle": "cybertruck", "visual": "foggy"}),
 }
 
 

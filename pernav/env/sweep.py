@@ -15,6 +15,8 @@ Example:
 
 from __future__ import annotations
 
+from collections import Counter
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -79,3 +81,35 @@ def best_lead(rows: list[dict[str, Any]]) -> float:
     """Lead time with the lowest tracking cost among clean turns (NaN if none)."""
     clean = [r for r in rows if r["outcome"] == "clean"]
     return min(clean, key=lambda r: r["tracking_cost"])["lead"] if clean else float("nan")
+
+
+def seeded_sweep(profile: DriverProfile, context: Context, leads=None, seeds: Iterable[int] = range(10)
+                 ) -> list[dict[str, Any]]:
+    """Per lead time: the share of each outcome over ``seeds`` and the mean tracking cost and collisions.
+
+    World v2 draws each prompt's reaction time, so one lead gives a spread of outcomes; the same seeds are
+    used at every lead (paired).
+
+    >>> from pernav.world.drivers import named_user, Context
+    >>> row = seeded_sweep(named_user("user1"), Context(), leads=[6.0], seeds=[0, 1])[0]
+    >>> row["lead"], sum(row["shares"].values())
+    (6.0, 1.0)
+    """
+    leads = np.arange(0.0, 16.5, 1.0) if leads is None else leads
+    seeds = list(seeds)
+    out = []
+    for lead in leads:
+        runs = [run_lead(profile, context, float(lead), s) for s in seeds]
+        counts = Counter(r["outcome"] for r in runs)
+        out.append({"lead": float(lead), "shares": {k: v / len(runs) for k, v in sorted(counts.items())},
+                    "tracking_cost": float(np.mean([r["tracking_cost"] for r in runs])),
+                    "collisions": int(sum(r["edge_strikes"] + r["vehicle_collisions"] for r in runs)),
+                    "runs": len(runs)})
+    return out
+
+
+def best_seeded_lead(rows: list[dict[str, Any]], clean_share: float = 0.8) -> float:
+    """Lead with the lowest mean tracking cost among those clean in at least ``clean_share`` of the seeds
+    (the latest such lead on ties); NaN if no lead is that reliable."""
+    ok = [r for r in rows if r["shares"].get("clean", 0.0) >= clean_share]
+    return min(ok, key=lambda r: (r["tracking_cost"], -r["lead"]))["lead"] if ok else float("nan")
