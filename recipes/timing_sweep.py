@@ -2,7 +2,7 @@
 
 World v2 draws each prompt's reaction time, so every lead is driven with several seeds (the same seeds at
 every lead) and the figure shows the share of each outcome and the mean tracking cost; the best lead is the
-cheapest among the leads that are clean for at least 80 % of the seeds.
+shortest lead whose mean cost is within 1 % of the cheapest among the leads clean for at least 80 % of the seeds.
 
 Run: .venv/bin/python recipes/timing_sweep.py docs/figures/timing_sweep.png [--seeds 10] [--json FILE]
 """

@@ -108,8 +108,11 @@ def seeded_sweep(profile: DriverProfile, context: Context, leads=None, seeds: It
     return out
 
 
-def best_seeded_lead(rows: list[dict[str, Any]], clean_share: float = 0.8) -> float:
-    """Lead with the lowest mean tracking cost among those clean in at least ``clean_share`` of the seeds
-    (the latest such lead on ties); NaN if no lead is that reliable."""
+def best_seeded_lead(rows: list[dict[str, Any]], clean_share: float = 0.8, tolerance: float = 0.01) -> float:
+    """The shortest lead (the latest prompt) among those clean in at least ``clean_share`` of the seeds whose
+    mean tracking cost is within ``tolerance`` of the cheapest of them; NaN if no lead is that reliable."""
     ok = [r for r in rows if r["shares"].get("clean", 0.0) >= clean_share]
-    return min(ok, key=lambda r: (r["tracking_cost"], -r["lead"]))["lead"] if ok else float("nan")
+    if not ok:
+        return float("nan")
+    cheapest = min(r["tracking_cost"] for r in ok)
+    return min(r["lead"] for r in ok if r["tracking_cost"] <= cheapest * (1 + tolerance))
