@@ -58,6 +58,7 @@ class HistoryWindow(Transform):
         self.state_key = state_key
         self.action_key = action_key
         self._n_actions = None if n_actions is None else int(n_actions)
+        self._from_spec = n_actions is None  # read (and re-read) from the env's action spec
         self.continuous = False  # set from the env's action spec: record actions as they are
         self.out_key = out_key
 
@@ -169,7 +170,7 @@ class HistoryWindow(Transform):
         parent = self.parent
         if parent is None:
             return
-        if self._n_actions is None:
+        if self._from_spec:
             self._read_action_spec()
             return
         spec = parent.full_action_spec.get(self.action_key, None)
@@ -201,4 +202,5 @@ class HistoryWindow(Transform):
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(K={self.K}, state_key={self.state_key!r}, "
-                f"action_key={self.action_key!r}, n_actions={self._n_actions}, out_key={self.out_key!r})")
+                f"action_key={self.action_key!r}, n_actions={None if self._from_spec else self._n_actions}, "
+                f"out_key={self.out_key!r})")
