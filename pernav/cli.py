@@ -116,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
     p.add_argument("--preset", default="default", help="smoke | default | paper")
     p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
-    p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (SPEC.md §5)")
+    p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
     p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
     p.add_argument("--seed", type=int)
     p.add_argument("--planner", choices=["retime", "paper"],

@@ -44,7 +44,7 @@ NAMED = {  # label -> (user, context overrides); batch "named": slow-timing user
     "user5 (cautious)": ("user5", {}),
     "user5, fog, cybertruck": ("user5", {"vehicle": "cybertruck", "visual": "foggy"}),
 }
-# batch "older": the first four samples of the older-driver corner of the population (SPEC.md §3:
+# batch "older": the first four samples of the older-driver corner of the population (docs/simulator.md:
 # older drivers react in 1.5-2.5 s and drive at ~0.8 of the limit), each in the default context
 OLDER_POPULATION = Population(seed=3, ranges={
     "reaction_time": (1.8, 2.5), "speed_factor": (0.8, 0.9), "decision_time": (2.4, 3.0),

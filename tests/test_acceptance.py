@@ -14,7 +14,7 @@ PROFILES = {
     "slow_fog_truck": (named_user("user3"), Context(vehicle="cybertruck", visual="foggy")),
     "truck": (named_user("user7"), Context(vehicle="cybertruck")),
 }
-# SPEC.md §3 users whose timing differs from the population average, and for whom the oracle beats
+# docs/simulator.md users whose timing differs from the population average, and for whom the oracle beats
 # explore by the criterion of recipes/oracle_vs_explore.py (paired episodes, fixed before the runs;
 # figures in docs/simulator.md). The fast keyboard driver (user4) and the distracted one (user6) do
 # not meet it: explore's timing already suits them (docs/simulator.md, "Known gaps"). user5 in fog in the

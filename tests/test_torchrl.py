@@ -98,7 +98,7 @@ def test_oracle_module() -> None:
 def test_history_window_single_env() -> None:
     env = TransformedEnv(make_torchrl_env(config=FAST, seed=0), HistoryWindow(K=5))
     td = env.reset()
-    assert torch.equal(td["history"], HistoryWindow(K=5).initial_window(td["observation"]))
+    assert torch.equal(td["history"], HistoryWindow(K=5, n_actions=7).initial_window(td["observation"]))
     assert not td["history"][:, S:].any()
     r = env.rollout(30, policy=explore_module())
     _check_window(r, K=5)

@@ -1,16 +1,20 @@
-"""Environments: the gymnasium NavigationEnv, its TorchRL wrapper and the prompt policies."""
+"""Environments: the gymnasium NavigationEnv, its TorchRL wrapper and the prompt policies.
 
-from pernav.env.navigation import DEFAULT_CONFIG, STATE_DIM, STATE_KEYS, NavigationEnv, load_user
-from pernav.env.policies import NavView, PromptPolicy, explore_policy, oracle_policy
+The names below load on first use (the env needs highway-env; ``pernav.env.layout`` does not).
+"""
 
-__all__ = [
-    "DEFAULT_CONFIG",
-    "STATE_DIM",
-    "STATE_KEYS",
-    "NavView",
-    "NavigationEnv",
-    "PromptPolicy",
-    "explore_policy",
-    "load_user",
-    "oracle_policy",
-]
+from pernav._lazy import lazy_exports
+
+_EXPORTS = {
+    "DEFAULT_CONFIG": "pernav.env.navigation",
+    "STATE_DIM": "pernav.env.navigation",
+    "STATE_KEYS": "pernav.env.navigation",
+    "NavigationEnv": "pernav.env.navigation",
+    "load_user": "pernav.env.navigation",
+    "NavView": "pernav.env.policies",
+    "PromptPolicy": "pernav.env.policies",
+    "explore_policy": "pernav.env.policies",
+    "oracle_policy": "pernav.env.policies",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -1,4 +1,4 @@
-"""NavigationEnv: the gymnasium environment of SPEC.md §2.
+"""NavigationEnv: the gymnasium environment of docs/simulator.md.
 
 One step = one simulated second: the navigation plays (or not) one voice instruction, then the world
 runs ``frequency`` frames. Observation: the paper's 14-number state. Reward: minus the tracking cost.
@@ -104,7 +104,7 @@ def load_user(spec: Any) -> tuple[DriverProfile, Context | None]:
 
 
 class NavigationEnv(gym.Env):
-    """Voice navigation of a simulated driver through a town (SPEC.md §2).
+    """Voice navigation of a simulated driver through a town (docs/simulator.md).
 
     ``reset(options=...)``: ``route`` (index 0-9, or a :class:`Route` of this town), ``user`` (name, mapping, file or
     :class:`DriverProfile`), ``context`` (:class:`Context` or mapping). Actions: 0-6 (or 0-20 with

@@ -1,6 +1,6 @@
 """What a planner needs from the navigation at a step: goal waypoints, the explore plan, an action mask.
 
-The MPC of SPEC.md §4 scores imagined action sequences of ``horizon`` steps against the route's goal
+The MPC of docs/study.md scores imagined action sequences of ``horizon`` steps against the route's goal
 waypoints, rewards sequences equal to the explore policy's sequence up to a time shift, and never issues
 a turn where no junction is ahead. The navigation knows its route, so it provides, per step:
 
@@ -29,6 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
 from pernav.world.simulation import N_INSTRUCTIONS
@@ -39,8 +40,6 @@ __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_IN
 TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"
 TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)  # everything but silence refers to a junction or a roundabout
-ROUTE_SPACING = 3.0  # m between the points of ``route_ahead``
-ROUTE_BEHIND = 15.0  # m of route behind the car included in ``route_ahead``
 
 
 def plan_goals(route: Route, progress: float, speed: float, horizon: int) -> np.ndarray:

@@ -1,4 +1,4 @@
-"""The deterministic dynamics model of car-plus-driver (paper §4.2, SPEC.md §4).
+"""The deterministic dynamics model of car-plus-driver (paper §4.2, docs/study.md).
 
 Input: the :class:`~pernav.transforms.HistoryWindow` of the last K (state, action) pairs, with the action
 about to be taken written into the newest row. Output: the next state. Internally the window is expressed
@@ -24,7 +24,7 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.modules import MLP
 
-from pernav.env.planning import ROUTE_BEHIND, ROUTE_SPACING
+from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.transforms.history import HistoryWindow
 
 __all__ = ["ROAD_MAX", "STATE_DIM", "DynamicsModel", "apply_delta", "ego_delta", "road_of", "road_points",

@@ -30,11 +30,11 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
-from pernav.env.planning import ROUTE_SPACING
+from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y, road_points
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
-from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
+from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 
 __all__ = ["ImaginedNavigationEnv", "make_world_model", "route_goal", "route_index"]
 
@@ -183,10 +183,15 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         return torch.stack(positions), torch.stack(goals)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        if tensordict is None or "history" not in tensordict.keys() or "observation" not in tensordict.keys():
-            raise ValueError("ImaginedNavigationEnv.reset needs a tensordict with 'observation' and 'history' "
+        has = tensordict is not None and {"history", "observation"} <= set(tensordict.keys())
+        if tensordict is not None and not has and ("history" in tensordict.keys() or "observation" in tensordict.keys()):
+            raise ValueError("ImaginedNavigationEnv.reset needs both 'observation' and 'history' "
                              "(imagined rollouts start from real states)")
-        out = tensordict.select("observation", "history").clone()
+        if not has:  # no start given (spec checks, tests): the zero state, its window of (0, no action) rows
+            shape = tensordict.shape if tensordict is not None else self.batch_size
+            out = self.state_spec.zero(shape)
+        else:
+            out = tensordict.select("observation", "history").clone()
         out.set("done", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))
         out.set("terminated", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))
         return out

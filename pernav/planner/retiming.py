@@ -55,7 +55,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.env.planning import ROUTE_SPACING
+from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
 from pernav.world.cost import tracking_cost
 

@@ -1,4 +1,4 @@
-"""TreeSearchPlanner: exact discrete tree-search MPC over a learned world model (paper §4.2, SPEC.md §4).
+"""TreeSearchPlanner: exact discrete tree-search MPC over a learned world model (paper §4.2, docs/study.md).
 
 The cost of an action sequence ``a_1..a_H`` is
 

@@ -37,6 +37,10 @@ def _figures(rounds: list[dict[str, Any]], method: str) -> dict[str, Any]:
     out["explore_minus_method"] = paired_difference(costs("explore", rounds), costs(method, rounds))
     out["tracking_cost"] = bootstrap_ci(costs(method, rounds))[0]
     out["explore_tracking_cost"] = bootstrap_ci(costs("explore", rounds))[0]
+    def hits(m: str) -> list[float]:
+        return [float(e.get("collisions", 0)) for r in rounds for e in r[m]["episodes"]]
+
+    out["explore_minus_method_collisions"] = paired_difference(hits("explore"), hits(method))  # per episode
     for key in ("collisions", "missed_turns", "extra_distance"):
         out[key] = float(sum(e.get(key, 0) for r in rounds for e in r[method]["episodes"]))
         out[f"explore_{key}"] = float(sum(e.get(key, 0) for r in rounds for e in r["explore"]["episodes"]))

@@ -131,14 +131,14 @@ def _headline(results: dict[str, Any]) -> list[str]:
 def comparison_table(comparison: dict[str, Any]) -> str:
     """Markdown of :func:`pernav.study.compare.compare`: paired differences to explore with 95 % CIs."""
     lines = ["| town | method | rounds | cost (explore) | explore − method (95 % CI) | gap closed (95 % CI) | gap "
-             "closed, rounds with headroom (n) | cost / explore, rounds without | collisions (explore) | missed turns "
-             "(explore) | extra m (explore) | steps off explore |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "closed, rounds with headroom (n) | cost / explore, rounds without | collisions (explore) | explore − method "
+             "collisions per episode (95 % CI) | missed turns (explore) | extra m (explore) | steps off explore |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
-    def ci(x: dict[str, Any] | None, pct: bool = False) -> str:
+    def ci(x: dict[str, Any] | None, pct: bool = False, digits: int = 0) -> str:
         if not x or x["mean"] != x["mean"]:  # NaN: no gap to close
             return "–"
-        f = (lambda v: f"{100 * v:.0f} %") if pct else (lambda v: f"{v:+.0f}")
+        f = (lambda v: f"{100 * v:.0f} %") if pct else (lambda v: f"{v:+.{digits}f}")
         return f"{f(x['mean'])} [{f(x['low'])}, {f(x['high'])}]"
 
     for town, methods in comparison.items():
@@ -151,7 +151,8 @@ def comparison_table(comparison: dict[str, Any]) -> str:
                          f"{ci(f['explore_minus_method'])} | "
                          f"{ci(f.get('gap_closed'), True)} | {ci(f.get('gap_closed_headroom'), True)} "
                          f"({f.get('headroom_rounds', 0)}) | {'–' if no_head is None else f'{no_head:.2f}'} | "
-                         f"{with_explore('collisions')} | {with_explore('missed_turns')} | "
+                         f"{with_explore('collisions')} | {ci(f.get('explore_minus_method_collisions'), digits=3)} | "
+                         f"{with_explore('missed_turns')} | "
                          f"{with_explore('extra_distance')} | "
                          f"{'–' if left is None else f'{100 * left:.0f} %'} |")
     return "\n".join(lines)

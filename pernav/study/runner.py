@@ -1,4 +1,4 @@
-"""Algorithm 1 per town, with every method, checkpoints and resume (SPEC.md §4–§5).
+"""Algorithm 1 per town, with every method, checkpoints and resume (docs/study.md).
 
 Per town: the offline entries are driven by the explore policy into every learner's data stream; the
 learners (``sysid``, ``adapt``: 7 actions, ``adapt_speed``: 21) are warm-started by maximum likelihood

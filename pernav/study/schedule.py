@@ -1,4 +1,4 @@
-"""The study schedule (SPEC.md §5): the paper's table as data, and user schedule files (YAML or JSON).
+"""The study schedule (docs/study.md): the paper's table as data, and user schedule files (YAML or JSON).
 
 An entry: ``label``, ``phase`` (offline | online), ``driver`` (a named user ``user1``..``user7`` or a
 mapping of :class:`~pernav.world.drivers.DriverProfile` fields, optionally with ``user`` as a base),
@@ -152,7 +152,7 @@ def load_schedule(path: str | Path) -> list[Entry]:
 
 
 def paper_schedule() -> list[Entry]:
-    """The paper's Table "Iteration Details" (SPEC.md §5); Online 7-12 in Town1-3 only."""
+    """The paper's Table "Iteration Details" (docs/study.md); Online 7-12 in Town1-3 only."""
     rows: list[dict[str, Any]] = [
         {"label": "Offline 0", "phase": "offline", "driver": "user1", "vehicle": "camaro", "camera": "first_person"},
         {"label": "Offline 1", "phase": "offline", "driver": "user1", "vehicle": "camaro", "camera": "third_person"},

@@ -1,4 +1,4 @@
-"""The online study: towns in parallel, results.json (SPEC.md §7), report and figures.
+"""The online study: towns in parallel, results.json (docs/study.md), report and figures.
 
 Example (the smoke preset, ~1 minute):
     >>> from pernav.study import preset, run_study

@@ -1,5 +1,20 @@
-"""Training: per-round replay buffers and the Follow-The-Meta-Leader meta-trainer."""
+"""Training: per-round replay buffers, the Follow-The-Meta-Leader meta-trainer, its ensemble, and collection.
 
-from pernav.trainer.buffers import RoundBuffers
+``RoundBuffers``, ``FTMLTrainer``, ``TrainConfig`` and ``EnsembleTrainer`` work with any
+:class:`~pernav.model.DynamicsModel`; the collection helpers (``history_env``, ``drive``, ...) drive the
+navigation env and load it on first use.
+"""
 
-__all__ = ["RoundBuffers"]
+from pernav._lazy import lazy_exports
+from pernav.trainer.buffers import KEYS, RoundBuffers
+from pernav.trainer.ensemble import EnsembleTrainer
+from pernav.trainer.ftml import FTMLTrainer, TrainConfig
+
+_COLLECT = {name: "pernav.trainer.collect"
+            for name in ("derive_seed", "drive", "episode_metrics", "history_env", "to_speed_actions")}
+__all__ = ["KEYS", "EnsembleTrainer", "FTMLTrainer", "RoundBuffers", "TrainConfig", *sorted(_COLLECT)]
+__getattr__, _dir = lazy_exports(__name__, _COLLECT)
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -1,4 +1,4 @@
-"""Per-round replay buffers for FTML (SPEC.md §1): one TorchRL ``TensorDictReplayBuffer`` per round.
+"""Per-round replay buffers for FTML (README.md): one TorchRL ``TensorDictReplayBuffer`` per round.
 
 Each round's buffer stores the round's transitions with ``"round"`` and ``"traj"`` metadata (a globally
 unique trajectory id) and samples contiguous ``[L]`` windows with a ``SliceSampler`` keyed on ``"traj"``,

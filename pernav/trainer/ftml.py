@@ -51,7 +51,7 @@ log = logging.getLogger("pernav.trainer")
 
 @dataclass
 class TrainConfig:
-    """Model-learning hyperparameters (SPEC.md §4 defaults)."""
+    """Model-learning hyperparameters (docs/study.md defaults)."""
 
     lr: float = 1e-3
     updates: int = 50  # model updates per round

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
-from torchrl.data import Composite, Unbounded
+from torchrl.data import Composite, OneHot, Unbounded
 from torchrl.envs.transforms import Transform
 
 __all__ = ["HistoryWindow"]
@@ -29,7 +29,10 @@ class HistoryWindow(Transform):
     The window lives only in the tensordict (it is also declared as a state entry, so batched envs send
     it to their workers), so the transform works inside or around ``SerialEnv``/``ParallelEnv``, with
     ``env.rollout`` and collectors, and replay samples carry it like any other key. Actions may be
-    categorical (``[...]`` or ``[..., 1]`` integers) or one-hot (``[..., n_actions]``).
+    categorical (``[...]`` or ``[..., 1]`` integers) or one-hot (``[..., n_actions]``); ``n_actions`` is read
+    from the env's action spec unless given. A continuous action (a floating-point spec, e.g. Pendulum's) is
+    recorded as it is: the action part of a row is the action itself. The window's dtype is the observation
+    spec's (float32 for integer observations).
 
     Example:
         >>> from torchrl.envs import TransformedEnv
@@ -45,21 +48,50 @@ class HistoryWindow(Transform):
     """
 
     def __init__(self, K: int = 5, state_key: NestedKey = "observation", action_key: NestedKey = "action",
-                 n_actions: int = 7, out_key: NestedKey = "history") -> None:
+                 n_actions: int | None = None, out_key: NestedKey = "history") -> None:
         if K < 1:
             raise ValueError(f"K must be >= 1, got {K}")
-        if n_actions < 1:
+        if n_actions is not None and n_actions < 1:
             raise ValueError(f"n_actions must be >= 1, got {n_actions}")
         super().__init__(in_keys=[state_key], out_keys=[out_key])
         self.K = int(K)
         self.state_key = state_key
         self.action_key = action_key
-        self.n_actions = int(n_actions)
+        self._n_actions = None if n_actions is None else int(n_actions)
+        self._from_spec = n_actions is None  # read (and re-read) from the env's action spec
+        self.continuous = False  # set from the env's action spec: record actions as they are
         self.out_key = out_key
+
+    @property
+    def n_actions(self) -> int:
+        """Width of a row's action part: the number of discrete actions (one-hot), or a continuous action's
+        size. Read from the env's action spec unless given."""
+        if self._n_actions is None:
+            self._read_action_spec()
+        return self._n_actions
+
+    def _read_action_spec(self) -> None:
+        parent = self.parent
+        if parent is None:
+            raise ValueError("HistoryWindow(n_actions=None) reads the number of actions from its env's action spec: "
+                             "put it in a TransformedEnv, or pass n_actions")
+        spec = parent.full_action_spec.get(self.action_key, None)
+        if spec is None:
+            raise KeyError(f"HistoryWindow: the env has no action {self.action_key!r}")
+        n = getattr(getattr(spec, "space", None), "n", None)
+        if isinstance(spec, OneHot) or (n is not None and not spec.dtype.is_floating_point):
+            self._n_actions, self.continuous = int(n), False
+        elif spec.dtype.is_floating_point:  # continuous: its values, as they are
+            extra = spec.shape[len(parent.batch_size):]
+            self._n_actions, self.continuous = int(torch.Size(extra).numel()), True
+        else:
+            raise ValueError(f"HistoryWindow: action {self.action_key!r} ({type(spec).__name__}, {spec.dtype}) is "
+                             "neither discrete (Categorical, OneHot) nor continuous (floating point)")
 
     # ----- window arithmetic --------------------------------------------------------------------
     def _row(self, state: torch.Tensor) -> torch.Tensor:
-        """``(state, zeros)`` as one float32 row, shape ``[..., 1, S + n_actions]``."""
+        """``(state, zeros)`` as one row, shape ``[..., 1, S + n_actions]``, in the state's floating dtype
+        (float32 for integer states)."""
         state = state if state.is_floating_point() else state.to(torch.float32)
         zeros = state.new_zeros(*state.shape[:-1], self.n_actions)
         return torch.cat([state, zeros], dim=-1).unsqueeze(-2)
@@ -68,6 +100,9 @@ class HistoryWindow(Transform):
         """``[..., n_actions]`` float one-hot of a categorical (``[...]``/``[..., 1]``) or one-hot action."""
         extra = tuple(action.shape[batch_dims:])
         batch = action.shape[:batch_dims]
+        if self.continuous:  # recorded as it is
+            return action.reshape(*batch, self.n_actions).to(torch.get_default_dtype() if not action.is_floating_point()
+                                                             else action.dtype)
         if self.n_actions == 1 and extra in ((), (1,)):
             return action.new_ones(*batch, 1, dtype=torch.float32)
         if extra == (self.n_actions,):
@@ -89,12 +124,12 @@ class HistoryWindow(Transform):
     def next_window(self, window: torch.Tensor, action: torch.Tensor, next_state: torch.Tensor,
                     batch_dims: int | None = None) -> torch.Tensor:
         """Shift ``window`` by one: record ``action`` in its newest row and append ``(next_state, 0)``."""
-        new_row = self._row(next_state).to(window.device)
+        new_row = self._row(next_state).to(device=window.device, dtype=window.dtype)
         if self.K == 1:
             return new_row
         batch_dims = window.ndim - 2 if batch_dims is None else batch_dims
         n_state = window.shape[-1] - self.n_actions
-        one_hot = self._one_hot(action, batch_dims).to(window.device).unsqueeze(-2)
+        one_hot = self._one_hot(action, batch_dims).to(device=window.device, dtype=window.dtype).unsqueeze(-2)
         actions = torch.cat([window[..., 1:-1, n_state:], one_hot], dim=-2)
         kept = torch.cat([window[..., 1:, :n_state], actions], dim=-1)
         return torch.cat([kept, new_row], dim=-2)
@@ -127,16 +162,25 @@ class HistoryWindow(Transform):
     def _spec(self, spec: Composite) -> Unbounded:
         state_spec = spec[self.state_key]
         width = state_spec.shape[-1] + self.n_actions
-        return Unbounded(shape=(*spec.shape, self.K, width), dtype=torch.float32, device=state_spec.device)
+        # the window's dtype is the observation's (float64 stays float64), float32 for integer observations
+        dtype = state_spec.dtype if state_spec.dtype.is_floating_point else torch.float32
+        return Unbounded(shape=(*spec.shape, self.K, width), dtype=dtype, device=state_spec.device)
 
     def _check_action_spec(self) -> None:
         parent = self.parent
         if parent is None:
             return
+        if self._from_spec:
+            self._read_action_spec()
+            return
         spec = parent.full_action_spec.get(self.action_key, None)
+        if spec is not None and spec.dtype.is_floating_point and not isinstance(spec, OneHot):
+            raise ValueError(f"HistoryWindow(n_actions={self._n_actions}) one-hot encodes discrete actions, but "
+                             f"action {self.action_key!r} is continuous ({type(spec).__name__}, {spec.dtype}); "
+                             "leave n_actions=None to record continuous actions as they are")
         n = getattr(getattr(spec, "space", None), "n", None)
-        if n is not None and int(n) != self.n_actions:
-            raise ValueError(f"HistoryWindow(n_actions={self.n_actions}) but the env has {int(n)} actions")
+        if n is not None and int(n) != self._n_actions:
+            raise ValueError(f"HistoryWindow(n_actions={self._n_actions}) but the env has {int(n)} actions")
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         self._check_action_spec()
@@ -158,4 +202,5 @@ class HistoryWindow(Transform):
 
     def __repr__(self) -> str:
         return (f"{type(self).__name__}(K={self.K}, state_key={self.state_key!r}, "
-                f"action_key={self.action_key!r}, n_actions={self.n_actions}, out_key={self.out_key!r})")
+                f"action_key={self.action_key!r}, n_actions={None if self._from_spec else self._n_actions}, "
+                f"out_key={self.out_key!r})")

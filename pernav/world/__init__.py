@@ -1,39 +1,31 @@
-"""The simulated world: towns, routes, drivers, traffic and the tracking cost."""
+"""The simulated world: towns, routes, drivers, traffic and the tracking cost.
 
-from pernav.world.cost import tracking_cost
-from pernav.world.drivers import (
-    CONTEXT_CHOICES,
-    NAMED_USERS,
-    PROFILE_RANGES,
-    Context,
-    Driver,
-    DriverProfile,
-    Population,
-    ProfileError,
-    named_user,
-    resolve,
-)
-from pernav.world.routing import Route, RouteError, astar, plan_route
-from pernav.world.towns import TOWN_NAMES, Town, TownError, get_town
+The names below load on first use, so that the learning side can import a light module (``pernav.world.cost``,
+``pernav.world.layout``) without highway-env.
+"""
 
-__all__ = [
-    "CONTEXT_CHOICES",
-    "NAMED_USERS",
-    "PROFILE_RANGES",
-    "Context",
-    "Driver",
-    "DriverProfile",
-    "Population",
-    "ProfileError",
-    "Route",
-    "RouteError",
-    "TOWN_NAMES",
-    "Town",
-    "TownError",
-    "astar",
-    "get_town",
-    "named_user",
-    "plan_route",
-    "resolve",
-    "tracking_cost",
-]
+from pernav._lazy import lazy_exports
+
+_EXPORTS = {
+    "tracking_cost": "pernav.world.cost",
+    "CONTEXT_CHOICES": "pernav.world.drivers",
+    "NAMED_USERS": "pernav.world.drivers",
+    "PROFILE_RANGES": "pernav.world.drivers",
+    "Context": "pernav.world.drivers",
+    "Driver": "pernav.world.drivers",
+    "DriverProfile": "pernav.world.drivers",
+    "Population": "pernav.world.drivers",
+    "ProfileError": "pernav.world.drivers",
+    "named_user": "pernav.world.drivers",
+    "resolve": "pernav.world.drivers",
+    "Route": "pernav.world.routing",
+    "RouteError": "pernav.world.routing",
+    "astar": "pernav.world.routing",
+    "plan_route": "pernav.world.routing",
+    "Town": "pernav.world.towns",
+    "TownError": "pernav.world.towns",
+    "get_town": "pernav.world.towns",
+    "TOWN_NAMES": "pernav.world.layout",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

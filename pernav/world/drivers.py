@@ -1,6 +1,6 @@
 """Simulated drivers: personal profiles, context modifiers, named users and a population prior.
 
-A :class:`DriverProfile` holds the canonical SPEC.md §3 fields; a :class:`Context` says which vehicle,
+A :class:`DriverProfile` holds the canonical profile fields (docs/simulator.md); a :class:`Context` says which vehicle,
 camera, visual condition and equipment the driver uses. :func:`resolve` combines both into the
 effective parameters the simulated driver acts with.
 
@@ -26,7 +26,7 @@ class ProfileError(ValueError):
     """A driver profile or context value is unknown or out of range."""
 
 
-# field -> (low, high, meaning); ranges from SPEC.md §3
+# field -> (low, high, meaning); ranges from docs/simulator.md
 PROFILE_RANGES: dict[str, tuple[float, float, str]] = {
     "reaction_time": (0.5, 2.5, "s from the end of an instruction's audio to acting on it"),
     "speed_factor": (0.8, 1.15, "desired speed / speed limit"),
@@ -51,7 +51,7 @@ CONTEXT_CHOICES: dict[str, tuple[str, ...]] = {
 
 @dataclass(frozen=True)
 class DriverProfile:
-    """A driver's personal dynamics (SPEC.md §3). Every field is validated against its range.
+    """A driver's personal dynamics (docs/simulator.md). Every field is validated against its range.
 
     >>> DriverProfile(reaction_time=3.0)  # doctest: +ELLIPSIS
     Traceback (most recent call last):
@@ -215,7 +215,7 @@ TRUCK_TURN_SPEED, TRUCK_DECEL, TRUCK_DECISION = 0.75, 0.75, 0.8
 
 
 def resolve(profile: DriverProfile, context: Context) -> Driver:
-    """Apply the context modifiers to a profile (SPEC.md §2 table)."""
+    """Apply the context modifiers to a profile (docs/simulator.md)."""
     sight, speed_mult, extra_rt = _VISUAL[context.visual]
     sight_mult, misjudge, extra_dt = _CAMERA[context.camera]
     veh = VEHICLES[context.vehicle]

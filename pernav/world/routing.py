@@ -19,10 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from highway_env.road.road import RoadNetwork
 
+from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 from pernav.world.towns import LaneIndex, Town, turn_direction
-
-WAYPOINT_SPACING = 2.0  # metres between route waypoints
-GOAL_LOOKAHEAD_S = 1.0  # goal waypoint = where the car would be after one policy step at its speed
 
 
 class RouteError(ValueError):

@@ -4,7 +4,7 @@ One :class:`World` holds a town's highway-env ``Road``, the driver's car (:class
 traffic (:class:`TrafficCar`), both highway-env vehicles. ``World.frame()`` advances one simulation
 frame; the gymnasium env runs ``frequency`` frames per policy step.
 
-How timing matters (SPEC.md §2): an instruction is acted on after its audio plus the driver's reaction
+How timing matters (docs/simulator.md): an instruction is acted on after its audio plus the driver's reaction
 time; the driver commits to a branch ``decision_time`` seconds before a junction; a turn instruction
 that arrives after that makes it swerve (hard braking, running wide: curb strikes, collisions) or miss
 the turn; one heard too early is forgotten after ``memory`` seconds or applied at an earlier junction.
@@ -529,7 +529,7 @@ class DriverCar(PathCar, Vehicle):
             self.world.events.swerves += 1
 
     def recommit(self, node: str, k: int, now: float) -> None:
-        """A turn instruction arrived after the branch was chosen: swerve into it (SPEC.md §2)."""
+        """A turn instruction arrived after the branch was chosen: swerve into it (docs/simulator.md)."""
         del self.path[k:]
         self.committed.discard(node)
         self.commit(node, now, late=True)
@@ -555,7 +555,7 @@ class DriverCar(PathCar, Vehicle):
                 self.extend_forced()
         turn = self.active(now, (1, 2))
         # late instruction after the commit: swerve if still before the stop line or just past it
-        # (SPEC.md §2: harsh braking, sharp steering, running wide), otherwise the turn is missed
+        # (docs/simulator.md: harsh braking, sharp steering, running wide), otherwise the turn is missed
         approach = self.path[0][1]
         if turn is not None and approach in self.committed and ":i" in approach and len(self.path) > 1:
             dist = town.lane(self.path[0]).length - self.s
@@ -701,7 +701,7 @@ class DriverCar(PathCar, Vehicle):
         lateral = min(veh.max_lateral_accel, np.sqrt(max(total**2 - self.accel**2, 1.0)))
         grip = lateral / max(v, 0.1)
         # a late swerve that asks the tyres for well beyond their grip (sharp steering while braking
-        # hard, at speed) slides: the car runs wide over the kerb (SPEC.md §2, "too late")
+        # hard, at speed) slides: the car runs wide over the kerb (docs/simulator.md, "too late")
         swerving = self.world.time < self.swerving_until
         if swerving and abs(yaw_rate) * v > self.SKID_RATIO * lateral:
             self.skid_time += dt
