@@ -13,7 +13,7 @@ from pernav.trainer.ftml import FTMLTrainer, TrainConfig
 _COLLECT = {name: "pernav.trainer.collect"
             for name in ("derive_seed", "drive", "episode_metrics", "history_env", "to_speed_actions")}
 __all__ = ["KEYS", "EnsembleTrainer", "FTMLTrainer", "RoundBuffers", "TrainConfig", *sorted(_COLLECT)]
-__getattr__, _dir = lazy_exports(__name__, _COLLECT)
+__getattr__ = lazy_exports(__name__, _COLLECT)[0]
 
 
 def __dir__() -> list[str]:

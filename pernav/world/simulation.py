@@ -270,7 +270,7 @@ class TrafficCar(PathCar, IDMVehicle):
         self.headway = headway
         self.lag = max(int(round(reaction / world.dt)), 0)
         self.odometer = 0.0
-        self.seen: list[tuple[float, float, float]] = []  # (odometer, gap, its speed) of the followed car
+        self.seen: list[tuple[float, float, float, float]] = []  # (odometer, gap, its speed, its acceleration)
         self.extend()
 
     def on_state_update(self) -> None:  # highway-env searches every lane here; we follow the path
@@ -610,8 +610,8 @@ class DriverCar(PathCar, Vehicle):
         if prep is not None and town.lane_junction.get(self.path[0]) is None:
             acc = min(acc, idm_acceleration(v, 0.75 * cruise, np.inf, 0, 1, d.comfort_accel, d.comfort_decel))
             self.lane_for(prep.direction)
-        elif self.active(now, (1, 2)) is not None:  # a turn heard without its "prepare": get into its lane
-            self.lane_for(self.active(now, (1, 2)).direction)
+        elif (heard_turn := self.active(now, (1, 2))) is not None:  # a turn without its "prepare": its lane
+            self.lane_for(heard_turn.direction)
         need = max(needs, default=0.0)
         harsh_limit = d.vehicle.max_decel
         if need > 0.55 * d.comfort_decel:
