@@ -118,10 +118,13 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     """TreeSearchPlanner per-decision latency at the paper's size (MLP [256, 256, 256], 7 actions, H=5,
     K=5; random init, normalization fitted on explore-policy data), all in one process:
 
-    * exhaustive level-by-level search (mask all-true) vs the flat enumeration on the same states;
+    * exhaustive level-by-level search (mask all-true) vs a flat enumeration of the same tree (every sequence
+      rolled out on its own, the reference) on the same states;
     * the masked search (the planner as deployed) on states recorded from real Town1/Town3 episodes;
     * the exhaustive search's achieved FLOP/s vs a bare matmul chain of the same layer shapes and batches;
-    * the 21-action beam search (beam 64, masked) on states from a 21-action env.
+    * the 21-action beam search (beam 64, masked) on states from a 21-action env;
+    * the generic :class:`~pernav.planner.DiscreteTreeSearchPlanner` on a toy model env (a CartPole-sized
+      :class:`~pernav.model.ImaginedEnv`: 4-d state, 2 actions, horizon 8, MLP [64, 64]; batch 1 and 16).
     """
     import torch
 
@@ -139,28 +142,32 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     keys = planner.in_keys
 
     def root(td, full_mask: bool):
-        mask = torch.ones_like(td["action_mask"]) if full_mask else td["action_mask"]
-        return td["observation"], td["history"], td["plan_goals"], td["explore_plan"], mask
+        td = td.select(*keys).clone()
+        if full_mask:
+            td["action_mask"] = torch.ones_like(td["action_mask"])
+        return td.unsqueeze(0)
 
     # (1) exhaustive level-by-level vs flat enumeration, mask all-true
     n_exhaustive = 3 if quick else 8
     picks = torch.linspace(0, data.shape[0] - 1, n_exhaustive).long()
-    planner.search(*root(data[0], True))  # warm-up
+    planner.search(root(data[0], True))  # warm-up
     level_t, flat_t, same, evaluations = [], [], True, (0, 0)
     for i in picks.tolist():
-        args = root(data[i], True)
-        t_level, a = _timed(planner.search, *args)
-        t_flat, b = _timed(planner.flat_search, *args)
+        td = root(data[i], True)
+        t_level, a = _timed(planner.search, td)
+        t_flat, (b, flat_evaluations) = _timed(_flat_search, planner, td)
         level_t.append(t_level)
         flat_t.append(t_flat)
-        same = same and torch.equal(a.actions, b.actions)
-        evaluations = (a.evaluations, b.evaluations)
+        same = same and torch.equal(a.actions[0], b)
+        evaluations = (a.evaluations, flat_evaluations)
     # (2) the masked search on every recorded step (up to a cap)
     n_masked = 40 if quick else 400
     steps = data[torch.linspace(0, data.shape[0] - 1, min(n_masked, data.shape[0])).long()].select(*keys)
     planner(steps[0].clone())
-    masked_t = [_timed(planner, steps[i].clone())[0] for i in range(steps.shape[0])]
-    masked_nodes = [r.evaluations for r in planner.last]
+    masked_t, masked_nodes = [], []
+    for i in range(steps.shape[0]):
+        masked_t.append(_timed(planner, steps[i].clone())[0])
+        masked_nodes.append(planner.last.evaluations)
     # (3) achieved FLOP/s of the exhaustive search vs a bare matmul chain at the level batch sizes
     batches = [7 ** (h + 1) for h in range(planner.horizon)]
     flops = _mlp_flops(model) * sum(batches)
@@ -199,6 +206,7 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
                 times[road].append(t)
     retime_t, other = times[train.road], next(r for r in times if r != train.road)
     ratio = statistics.median(level_t) / statistics.median(flat_t)
+    toy = _toy_planner_ms(repeats=20 if quick else 100)
     return {
         "retime_model": f"{train.ensemble} x MLP {list(train.hidden)}, K={train.K}",
         "retime_searched_states": len(retime_t),
@@ -224,8 +232,52 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
         "beam21_states": len(beam_t),
         "beam21_ms_median": _median_ms(beam_t),
         "beam21_ms_p95": _p95_ms(beam_t),
+        **toy,
         "target": "level_vs_flat_ratio <= 0.3, masked_ms_median <= 20, retime_ms_median <= 20",
     }
+
+
+def _flat_search(planner, roots):
+    """The reference for the level-by-level search: every sequence of the (all-true) tree of ``planner``
+    (a :class:`~pernav.planner.TreeSearchPlanner`) rolled out on its own with the same model, scored with its
+    reward terms; the best sequence and the model evaluations it took."""
+    import torch
+
+    model, root = planner.model, roots[0]
+    H = planner.levels(roots)
+    seqs = torch.cartesian_prod(*[torch.arange(model.n_actions)] * H).reshape(-1, H)
+    hist = root["history"].expand(seqs.shape[0], *root["history"].shape)
+    ret = torch.zeros(seqs.shape[0])
+    with torch.no_grad():
+        for h in range(H):
+            state = model(hist, seqs[:, h])
+            goal = hist[:, -1, 9:11]  # the goal of the previous state: the env's reward
+            ret -= ((state[:, :2] - goal) ** 2).sum(-1)
+            hist = model.next_window(hist, seqs[:, h], state)
+        ret += planner.sequence_reward(roots, seqs.unsqueeze(0))[0]
+    return seqs[int(ret.argmax())], seqs.numel()
+
+
+def _toy_planner_ms(repeats: int) -> dict[str, Any]:
+    """Decision time of the generic planner on a CartPole-sized learned model env (batch 1 and 16)."""
+    import torch
+    from tensordict import TensorDict
+
+    from pernav.model import DynamicsModel, ImaginedEnv
+    from pernav.planner import DiscreteTreeSearchPlanner
+
+    torch.manual_seed(0)
+    model = DynamicsModel(state_dim=4, n_actions=2, K=2, hidden=(64, 64))
+    env = ImaginedEnv(model, reward_fn=lambda s, a, n: 1.0 - n[..., 0].abs(),
+                      termination_fn=lambda n: n[..., 2].abs() > 0.21)
+    planner = DiscreteTreeSearchPlanner(env, planning_horizon=8)
+    out: dict[str, Any] = {"toy_env": "ImaginedEnv 4-d state, 2 actions, H=8, MLP [64, 64]"}
+    for batch in (1, 16):
+        roots = TensorDict({"observation": torch.randn(batch, 4) * 0.05, "history": torch.zeros(batch, 2, 6)}, [batch])
+        planner(roots.clone())
+        times = [_timed(planner, roots.clone())[0] for _ in range(repeats)]
+        out[f"toy_batch{batch}_ms_median"] = _median_ms(times)
+    return out
 
 
 def _synthetic_transitions(shape: tuple[int, ...], n_actions: int = 7, K: int = 5, seed: int = 0):

@@ -40,6 +40,14 @@ def _planner(model: DynamicsModel, **kwargs) -> TreeSearchPlanner:
     return TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)), **kwargs)
 
 
+def _search(planner: TreeSearchPlanner, obs, hist, goals, plan, mask) -> tuple[torch.Tensor, float, int]:
+    """One root's (best sequence [H], its cost, env steps) from the planner's search."""
+    root = TensorDict({"observation": obs, "history": hist, "plan_goals": goals, "explore_plan": plan,
+                       "action_mask": mask}, []).unsqueeze(0)
+    result = planner.search(root)
+    return result.actions[0], -float(result.returns[0]), result.evaluations
+
+
 def _root(n_actions: int, H: int, shift: int, seed: int, K: int = 5):
     """A random planning problem: (observation, history, goals [H, 2], explore plan [H + 2S], mask [H, A])."""
     g = torch.Generator().manual_seed(seed)
@@ -97,35 +105,32 @@ def test_planner_equals_brute_force(n_actions: int, H: int, use_mask: bool, goal
         assert planner.playbacks == playbacks
         for problem in range(2):
             obs, hist, goals, plan, mask = _root(n_actions, H, shift, seed=100 * seed + problem)
-            result = planner.search(obs, hist, goals, plan, mask)
+            actions, found, evaluations = _search(planner, obs, hist, goals, plan, mask)
             seq, cost = _brute_force(model, hist, goals, plan, mask, bonus=bonus, penalty=penalty,
                                      use_mask=use_mask, playbacks=playbacks, goal_source=goal_source,
                                      shift_decay=shift_decay)
-            assert int(result.actions[0]) == int(seq[0])
-            assert torch.equal(result.actions, seq)
-            assert result.cost == pytest.approx(cost, rel=1e-5, abs=1e-4)
-            flat = planner.flat_search(obs, hist, goals, plan, mask)
-            assert torch.equal(flat.actions, result.actions)
-            assert flat.cost == pytest.approx(result.cost, rel=1e-5, abs=1e-4)
+            assert int(actions[0]) == int(seq[0])
+            assert torch.equal(actions, seq)
+            assert found == pytest.approx(cost, rel=1e-5, abs=1e-4)
             leaves = int(torch.tensor([int(mask[h].sum()) if use_mask else n_actions for h in range(H)]).prod())
-            assert flat.evaluations == H * leaves and result.evaluations < flat.evaluations
+            assert evaluations < H * leaves  # shared prefixes: fewer model steps than a flat enumeration
 
 
 def test_planner_bonus_and_penalty_matter() -> None:
     """The brute-force comparison is not vacuous: the bonus and the penalty change the chosen sequence."""
     model = _model(0)
     obs, hist, goals, plan, mask = _root(7, 3, 1, seed=5)
-    free = _planner(model, horizon=3, shift=1, bonus=0.0, mask=False, penalty=0.0).search(
-        obs, hist, goals, plan, torch.ones_like(mask))
-    plan = torch.cat([torch.zeros(1, dtype=torch.long), (free.actions + 1) % 7, torch.zeros(1, dtype=torch.long)])
-    lured = _planner(model, horizon=3, shift=1, bonus=1e6).search(obs, hist, goals, plan, torch.ones_like(mask))
+    free = _search(_planner(model, horizon=3, shift=1, bonus=0.0, mask=False, penalty=0.0),
+                   obs, hist, goals, plan, torch.ones_like(mask))[0]
+    plan = torch.cat([torch.zeros(1, dtype=torch.long), (free + 1) % 7, torch.zeros(1, dtype=torch.long)])
+    lured = _search(_planner(model, horizon=3, shift=1, bonus=1e6), obs, hist, goals, plan, torch.ones_like(mask))[0]
     windows = plan.unfold(0, 3, 1)  # the plan shifted by -1, 0, 1
-    assert (lured.actions == windows).all(-1).any() and not torch.equal(lured.actions, free.actions)
+    assert (lured == windows).all(-1).any() and not torch.equal(lured, free)
     forbidden = torch.ones_like(mask)
     forbidden[:, 1:] = False
-    fined = _planner(model, horizon=3, shift=1, bonus=0.0, penalty=1e6, mask=False).search(
-        obs, hist, goals, plan, forbidden)
-    assert not fined.actions.any()
+    fined = _search(_planner(model, horizon=3, shift=1, bonus=0.0, penalty=1e6, mask=False),
+                    obs, hist, goals, plan, forbidden)[0]
+    assert not fined.any()
 
 
 # ----- 2. beam == exhaustive when it keeps every node -----------------------------------------------------
@@ -136,11 +141,11 @@ def test_wide_beam_equals_exhaustive(n_actions: int, H: int) -> None:
     for seed in range(3):
         obs, hist, goals, plan, mask = _root(n_actions, H, 2, seed=seed)
         leaves = n_actions ** H
-        full = exhaustive.search(obs, hist, goals, plan, mask)
-        beam = _planner(model, horizon=H, shift=2, beam=leaves).search(obs, hist, goals, plan, mask)
-        assert torch.equal(beam.actions, full.actions) and beam.cost == full.cost
-        narrow = _planner(model, horizon=H, shift=2, beam=4).search(obs, hist, goals, plan, mask)
-        assert narrow.cost >= full.cost - 1e-4 and narrow.evaluations < full.evaluations
+        full = _search(exhaustive, obs, hist, goals, plan, mask)
+        beam = _search(_planner(model, horizon=H, shift=2, beam=leaves), obs, hist, goals, plan, mask)
+        assert torch.equal(beam[0], full[0]) and beam[1] == full[1]
+        narrow = _search(_planner(model, horizon=H, shift=2, beam=4), obs, hist, goals, plan, mask)
+        assert narrow[1] >= full[1] - 1e-4 and narrow[2] < full[2]
 
 
 # ----- 3. no turn prompts without a junction ahead -----------------------------------------------------

@@ -195,7 +195,7 @@ def test_paper_planner_on_the_true_model_matches_its_tree_on_a_deterministic_cop
                        "explore_plan": torch.as_tensor(info["explore_plan"]),
                        "action_mask": torch.as_tensor(info["action_mask"])}, [])
     root["history"] = torch.cat([root["history"], torch.zeros(5, 7)], -1)
-    assert 0 <= int(planner(root)["action"]) < 7 and planner.last[0].evaluations >= 3
+    assert 0 <= int(planner(root)["action"]) < 7 and planner.last.evaluations >= 3
 
 
 def test_build_planner_rejects_unknown_kinds_and_options():

@@ -30,13 +30,18 @@ Example:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 
-__all__ = ["adapt", "meta_parameters", "trajectory_windows"]
+__all__ = ["LossFn", "adapt", "meta_parameters", "trajectory_windows"]
+
+#: A model loss ``loss_fn(model, batch [B, L], params=None) -> scalar`` (``[E]`` for stacked ensemble params).
+LossFn = Callable[..., torch.Tensor]
 
 
 def meta_parameters(model: torch.nn.Module) -> TensorDictBase:
@@ -60,7 +65,8 @@ def trajectory_windows(trajectory: TensorDictBase, L: int, stride: int = 1) -> T
 
 def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
           first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None,
-          max_norm: float | None = None, backtrack: float | None = None) -> TensorDictBase:
+          max_norm: float | None = None, backtrack: float | None = None,
+          loss_fn: LossFn = multistep_loss) -> TensorDictBase:
     """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over the L-slices of ``tau``
     (by default the slices that tile ``tau``, ``stride=L``: every transition is predicted once, at every
     rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
@@ -76,6 +82,9 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
 
     ``backtrack``: the Armijo constant ``c`` of the step-halving line search on ``tau`` (module docstring;
     per member for stacked parameters); ``None`` (the paper): the fixed step ``alpha``.
+
+    ``loss_fn``: the loss the step descends, ``loss_fn(model, windows [N, L], params=...)``; the paper's L-step
+    loss (:func:`~pernav.model.losses.multistep_loss`) by default, e.g. ``single_step_loss`` or your own.
     """
     if backtrack is not None and not (0.0 < backtrack < 1.0 and first_order):
         raise ValueError(f"backtrack must be in (0, 1) and needs first_order=True, got {backtrack} "
@@ -87,7 +96,7 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
         raise ValueError("no parameter requires grad: nothing to adapt")
     windows = trajectory_windows(trajectory, L, L if stride is None else stride)
     with torch.enable_grad():
-        loss = multistep_loss(model, windows, params=params)
+        loss = loss_fn(model, windows, params=params)
         # stacked ensemble parameters give one loss per member: their sum's gradient is each member's own
         grads = torch.autograd.grad(loss.sum(), [params.get(k) for k in keys], create_graph=not first_order)
         if max_norm is not None:
@@ -97,7 +106,7 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
             grads = [g * scale.reshape(scale.shape + (1,) * (g.ndim - lead)) for g in grads]
     if backtrack is None:
         return _step(params, keys, grads, alpha)
-    return _backtracked(model, windows, params, keys, grads, loss.detach(), alpha, backtrack)
+    return _backtracked(model, windows, params, keys, grads, loss.detach(), alpha, backtrack, loss_fn)
 
 
 def _step(params: TensorDictBase, keys: list, grads: list, step: float | torch.Tensor) -> TensorDictBase:
@@ -112,7 +121,8 @@ def _step(params: TensorDictBase, keys: list, grads: list, step: float | torch.T
 
 @torch.no_grad()
 def _backtracked(model: DynamicsModel, windows: TensorDictBase, params: TensorDictBase, keys: list, grads: list,
-                 loss0: torch.Tensor, alpha: float, c: float, halvings: int = 3) -> TensorDictBase:
+                 loss0: torch.Tensor, alpha: float, c: float, loss_fn: LossFn = multistep_loss,
+                 halvings: int = 3) -> TensorDictBase:
     """Each member's largest step in ``alpha, alpha/2, ...`` that passes the Armijo test (the smallest when
     none does)."""
     lead = params.batch_dims
@@ -121,7 +131,7 @@ def _backtracked(model: DynamicsModel, windows: TensorDictBase, params: TensorDi
     settled = torch.zeros_like(loss0, dtype=torch.bool)
     for i in range(halvings + 1):
         a = alpha / 2 ** i
-        ok = multistep_loss(model, windows, params=_step(params, keys, grads, a)) <= loss0 - c * a * g2
+        ok = loss_fn(model, windows, params=_step(params, keys, grads, a)) <= loss0 - c * a * g2
         step = torch.where(ok & ~settled, torch.full_like(step, a), step)
         settled |= ok
         if bool(settled.all()):

@@ -1,11 +1,12 @@
-"""The deterministic dynamics model of car-plus-driver (paper §4.2, docs/study.md).
+"""The deterministic dynamics model (paper §4.2, docs/study.md): of car-plus-driver, or of any discrete-action system.
 
 Input: the :class:`~pernav.transforms.HistoryWindow` of the last K (state, action) pairs, with the action
-about to be taken written into the newest row. Output: the next state. Internally the window is expressed
-in the egocentric frame of the newest state (positions, velocities and goals relative to the car and
-rotated by its heading), normalized, and an MLP predicts the normalized next-state *difference* in that
-frame, which is then turned back into the next world-frame state. The normalization statistics are buffers
-of the module: saved, loaded and swapped with it.
+about to be taken written into the newest row. Output: the next state. How the window is read and how a
+prediction becomes the next state is one swappable object (``delta``): for the navigation's 14-d state,
+:class:`EgocentricDifferences` (the window in the frame of the newest state: positions, velocities and goals
+relative to the car and rotated by its heading; the MLP predicts the next-state difference in that frame);
+for any other state, :class:`PlainDifferences` (the flat window; ``next_state - state``). Inputs and
+differences are normalized; the statistics are buffers of the module: saved, loaded and swapped with it.
 
 Example:
     >>> import torch
@@ -13,6 +14,9 @@ Example:
     >>> history = torch.zeros(4, 5, 14 + 7)
     >>> model(history, torch.tensor([0, 1, 2, 3])).shape
     torch.Size([4, 14])
+    >>> cartpole = DynamicsModel(state_dim=4, n_actions=2, K=2, hidden=(32,))  # plain differences
+    >>> cartpole(torch.zeros(8, 2, 4 + 2), torch.zeros(8, dtype=torch.long)).shape
+    torch.Size([8, 4])
 """
 
 from __future__ import annotations
@@ -27,8 +31,8 @@ from torchrl.modules import MLP
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["ROAD_MAX", "STATE_DIM", "DynamicsModel", "apply_delta", "ego_delta", "road_of", "road_points",
-           "wrap_angle"]
+__all__ = ["DELTAS", "ROAD_MAX", "STATE_DIM", "DynamicsModel", "EgocentricDifferences", "PlainDifferences", "apply_delta",
+           "ego_delta", "road_of", "road_points", "wrap_angle"]
 
 STATE_DIM = 14
 X, Y, VX, VY, HEADING, GX, GY = 0, 1, 3, 4, 6, 9, 10
@@ -107,6 +111,83 @@ def apply_delta(state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     return state + world
 
 
+class EgocentricDifferences:
+    """How the navigation model reads a window and predicts: the 14-d navigation state in the car's frame.
+
+    Features: per row, position, velocity and goal relative to the newest state's position and rotated by
+    its heading, sin/cos of the heading difference, the other state entries and the action; then the road
+    points (if any) in the same frame. The prediction is the next state's :func:`ego_delta`.
+
+    >>> layout = EgocentricDifferences()
+    >>> layout.feature_size(K=5, state_dim=14, n_actions=7, road=0)
+    110
+    """
+
+    name = "egocentric"
+
+    def check(self, state_dim: int, road: int) -> None:
+        if state_dim != STATE_DIM:
+            raise ValueError(f"delta='egocentric' reads the {STATE_DIM}-d navigation state, got state_dim={state_dim}; "
+                             "use delta='plain' for another state")
+
+    def feature_size(self, K: int, state_dim: int, n_actions: int, road: int) -> int:
+        return K * (state_dim + 1 + n_actions) + 2 * road
+
+    def features(self, states: torch.Tensor, actions: torch.Tensor, road: torch.Tensor | None) -> torch.Tensor:
+        now = states[..., -1:, :]
+        theta = now[..., HEADING]
+        S = states.shape[-1]
+        origin = torch.cat([now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], GX - Y - 1),
+                            now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], S - GY - 1)], dim=-1)
+        pairs = _rotate_pairs(states - origin, -theta)  # vx, vy are not shifted: the origin is 0 there
+        dtheta = states[..., HEADING] - theta
+        feats = torch.cat([pairs.flatten(-2), states[..., 2:3], states[..., 5:6], torch.sin(dtheta).unsqueeze(-1),
+                           torch.cos(dtheta).unsqueeze(-1), states[..., 7:9], states[..., 11:], actions], dim=-1)
+        if road is None:
+            return feats.flatten(-2)
+        ahead = _rotate(road - now[..., X:Y + 1], -theta[..., 0])
+        return torch.cat([feats.flatten(-2), ahead.flatten(-2)], dim=-1)  # ahead has the window's batch (via now)
+
+    def difference(self, state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
+        return ego_delta(state, next_state)
+
+    def apply(self, state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+        return apply_delta(state, delta)
+
+
+class PlainDifferences:
+    """How a model of any state reads a window and predicts: the flat window (states and actions) as it is,
+    and the plain difference ``next_state - state`` (MBRL's usual choice; Nagabandi et al. 2018).
+
+    >>> layout = PlainDifferences()
+    >>> s, n = torch.tensor([1.0, 2.0]), torch.tensor([1.5, 1.0])
+    >>> layout.difference(s, n).tolist(), layout.apply(s, layout.difference(s, n)).tolist()
+    ([0.5, -1.0], [1.5, 1.0])
+    """
+
+    name = "plain"
+
+    def check(self, state_dim: int, road: int) -> None:
+        if road:
+            raise ValueError(f"road needs delta='egocentric' (the road is read in the car's frame), got road={road}")
+
+    def feature_size(self, K: int, state_dim: int, n_actions: int, road: int) -> int:
+        return K * (state_dim + n_actions)
+
+    def features(self, states: torch.Tensor, actions: torch.Tensor, road: torch.Tensor | None) -> torch.Tensor:
+        return torch.cat([states, actions], dim=-1).flatten(-2)
+
+    def difference(self, state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
+        return next_state - state
+
+    def apply(self, state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
+        return state + delta
+
+
+#: The prediction layouts by name (``DynamicsModel(delta=...)``).
+DELTAS = {"egocentric": EgocentricDifferences, "plain": PlainDifferences}
+
+
 def _safe_std(x: torch.Tensor) -> torch.Tensor:
     """Per-column std; a column constant in the data (e.g. no roundabout in this town) gets 1, not a tiny
     value that would blow up when the column varies later."""
@@ -118,8 +199,8 @@ class DynamicsModel(nn.Module):
     """MLP dynamics ``(history window, action) -> next state`` predicting egocentric differences.
 
     Args:
-        state_dim: state size (14, the paper's state).
-        n_actions: 7, or 21 with playback speed.
+        state_dim: state size (14, the paper's state; any size with ``delta="plain"``).
+        n_actions: 7, or 21 with playback speed (any number of discrete actions).
         K: history length (rows of the window).
         hidden: hidden layer widths ([256, 256, 256] in the paper).
         road: points of the planned route ahead it also reads (:func:`road_points`, 6 m apart, at most
@@ -129,6 +210,9 @@ class DynamicsModel(nn.Module):
         context: size of a learned context vector fed to the first layer beside the features (0: none, the
             paper's model). With a context, ``U`` adapts only it (CAVIA, Zintgraf et al. 2019: the driver as a
             few numbers the meta-trained network has learned to read, instead of a step on every weight).
+        delta: how the window is read and a prediction becomes the next state: ``"egocentric"``
+            (:class:`EgocentricDifferences`, the 14-d navigation state), ``"plain"`` (:class:`PlainDifferences`),
+            ``"auto"`` (egocentric for a 14-d state, else plain) or an object with the same methods.
 
     The window convention is :class:`~pernav.transforms.HistoryWindow`'s: the newest row holds the current
     state and a zero action; :meth:`forward` writes ``action`` there. :meth:`next_window` shifts a window
@@ -141,19 +225,28 @@ class DynamicsModel(nn.Module):
     """
 
     def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
-                 hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0) -> None:
+                 hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0,
+                 delta: str | EgocentricDifferences | PlainDifferences = "auto") -> None:
         super().__init__()
-        if state_dim != STATE_DIM:
-            raise ValueError(f"state_dim must be {STATE_DIM} (the paper's state), got {state_dim}")
+        if int(state_dim) < 1 or int(n_actions) < 1:
+            raise ValueError(f"state_dim and n_actions must be >= 1, got {state_dim} and {n_actions}")
+        if isinstance(delta, str):
+            if delta == "auto":
+                delta = "egocentric" if int(state_dim) == STATE_DIM else "plain"
+            if delta not in DELTAS:
+                raise ValueError(f"unknown delta {delta!r}; choose one of auto, {', '.join(DELTAS)}")
+            delta = DELTAS[delta]()
+        self.delta_layout = delta
+        delta.check(int(state_dim), int(road))
         if not 0 <= int(road) <= ROAD_MAX:
             raise ValueError(f"road must be between 0 and {ROAD_MAX} (route points the model reads), got {road}")
         if int(context) < 0:
             raise ValueError(f"context must be >= 0 (the size of the learned context vector), got {context}")
-        self.state_dim, self.n_actions, self.K, self.road = state_dim, int(n_actions), int(K), int(road)
+        self.state_dim, self.n_actions, self.K, self.road = int(state_dim), int(n_actions), int(K), int(road)
         self.n_context = int(context)
         self.hidden = tuple(int(h) for h in hidden)
         self.window = HistoryWindow(K=self.K, n_actions=self.n_actions)
-        self.n_features = self.K * (state_dim + 1 + self.n_actions) + 2 * self.road
+        self.n_features = delta.feature_size(self.K, self.state_dim, self.n_actions, self.road)
         if self.n_context:  # zeros: the meta update learns its initial value along with the weights
             self.context = nn.Parameter(torch.zeros(self.n_context))
         self.net = MLP(in_features=self.n_features + self.n_context, out_features=state_dim,
@@ -171,26 +264,13 @@ class DynamicsModel(nn.Module):
         return torch.cat([history[..., :-1, :], newest], dim=-2)
 
     def features(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
-        """Flat egocentric features of a window, ``[..., n_features]``: per row, position, velocity and goal
-        relative to the newest state's position and rotated by its heading, sin/cos of the heading
-        difference, the other state entries, and the action; then (a model with ``road``) the road points
-        in the same frame."""
-        states, actions = window[..., : self.state_dim], window[..., self.state_dim:]
-        now = states[..., -1:, :]
-        theta = now[..., HEADING]
-        origin = torch.cat([now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], GX - Y - 1),
-                            now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], self.state_dim - GY - 1)], dim=-1)
-        pairs = _rotate_pairs(states - origin, -theta)  # vx, vy are not shifted: the origin is 0 there
-        dtheta = states[..., HEADING] - theta
-        feats = torch.cat([pairs.flatten(-2), states[..., 2:3], states[..., 5:6], torch.sin(dtheta).unsqueeze(-1),
-                           torch.cos(dtheta).unsqueeze(-1), states[..., 7:9], states[..., 11:], actions], dim=-1)
-        if not self.road:
-            return feats.flatten(-2)
-        if road is None or road.shape[-2] < self.road:
+        """Flat features of a window with its action, ``[..., n_features]``, as the model's ``delta`` object
+        reads it (:class:`EgocentricDifferences`, :class:`PlainDifferences`)."""
+        if self.road and (road is None or road.shape[-2] < self.road):
             raise ValueError(f"this model reads {self.road} road points ahead: pass road [..., >= {self.road}, 2] "
                              f"(road_points of the route), got {None if road is None else tuple(road.shape)}")
-        ahead = _rotate(road[..., : self.road, :] - now[..., X:Y + 1], -theta[..., 0])
-        return torch.cat([feats.flatten(-2), ahead.flatten(-2)], dim=-1)  # ahead has the window's batch (via now)
+        return self.delta_layout.features(window[..., : self.state_dim], window[..., self.state_dim:],
+                                          road[..., : self.road, :] if self.road else None)
 
     # ----- prediction ----------------------------------------------------------------------------
     def normalized_delta(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
@@ -210,7 +290,7 @@ class DynamicsModel(nn.Module):
         """Next state ``[..., 14]`` after taking ``action`` with window ``history`` (and ``road``, a model
         with ``road``)."""
         window = self.with_action(history, action)
-        return apply_delta(history[..., -1, : self.state_dim], self.delta(window, road))
+        return self.delta_layout.apply(history[..., -1, : self.state_dim], self.delta(window, road))
 
     def ensemble_forward(self, history: torch.Tensor, action: torch.Tensor, params: TensorDictBase,
                          road: torch.Tensor | None = None) -> torch.Tensor:
@@ -229,7 +309,7 @@ class DynamicsModel(nn.Module):
         window = self.with_action(history, action.expand(history.shape[:-2]))
         delta = self.ensemble_normalized_delta(window, params, road) * params["out_std"].unsqueeze(1) \
             + params["out_mean"].unsqueeze(1)
-        return apply_delta(history[..., -1, : self.state_dim], delta)
+        return self.delta_layout.apply(history[..., -1, : self.state_dim], delta)
 
     def ensemble_normalized_delta(self, window: torch.Tensor, params: TensorDictBase,
                                   road: torch.Tensor | None = None) -> torch.Tensor:
@@ -258,7 +338,7 @@ class DynamicsModel(nn.Module):
                           road: torch.Tensor | None = None) -> None:
         """Set the input/output statistics from data (``[N, K, D]``, ``[N]``, ``[N, 14]``; ``[N, R, 2]``)."""
         feats = self.features(self.with_action(history, action), road)
-        delta = ego_delta(history[..., -1, : self.state_dim], next_state)
+        delta = self.delta_layout.difference(history[..., -1, : self.state_dim], next_state)
         self.in_mean.copy_(feats.mean(0))
         self.in_std.copy_(_safe_std(feats))
         self.out_mean.copy_(delta.mean(0))
@@ -267,4 +347,4 @@ class DynamicsModel(nn.Module):
     def config(self) -> dict:
         """Constructor arguments (saved with checkpoints)."""
         return {"state_dim": self.state_dim, "n_actions": self.n_actions, "K": self.K, "hidden": list(self.hidden),
-                "road": self.road, "context": self.n_context}
+                "road": self.road, "context": self.n_context, "delta": self.delta_layout.name}

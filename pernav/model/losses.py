@@ -25,7 +25,7 @@ from contextlib import nullcontext
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.dynamics import DynamicsModel, apply_delta, ego_delta, road_of
+from pernav.model.dynamics import DynamicsModel, road_of
 
 __all__ = ["multistep_loss", "single_step_loss", "using"]
 
@@ -68,7 +68,7 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
         pred = (model.normalized_delta(window, step_road) if ensemble is None
                 else model.ensemble_normalized_delta(window, ensemble, step_road))
         # the true difference, in the frame of the true previous state (Eq. 4: compare differences)
-        target = (ego_delta(states[:, step], next_states[:, step]) - mean) / std
+        target = (model.delta_layout.difference(states[:, step], next_states[:, step]) - mean) / std
         err = ((pred - target) ** 2).sum(-1)  # [B] or [E, B]
         if weights is None:
             loss = loss + err.mean(-1)
@@ -76,7 +76,7 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
             loss = loss + (err * weights).sum(-1) / weights.sum(-1).clamp_min(1e-12)
         if step + 1 < steps:
             current = history[..., -1, :S]
-            predicted = apply_delta(current, pred * std + mean)
+            predicted = model.delta_layout.apply(current, pred * std + mean)
             history = model.next_window(history, action, predicted)
     return loss / steps
 
@@ -85,7 +85,7 @@ def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDi
                    weights: torch.Tensor | None = None) -> torch.Tensor:
     """The L-step loss (Eq. 4): roll the model forward autoregressively from the true window at the
     start of each ``[L]`` slice with the true actions, and compare predicted and true state differences
-    (normalized egocentric differences, squared error, averaged over steps and batch).
+    (normalized differences in the model's ``delta`` layout, squared error, averaged over steps and batch).
 
     ``params`` with a batch dimension (an ensemble's stacked parameters, ``[E]``) gives every member's loss,
     ``[E]``, in one batched pass (equal to each member's own loss). ``weights`` (``[B]``, or ``[E, B]`` with an

@@ -99,8 +99,9 @@ class _TrackingReward(nn.Module):
     """``-tracking_cost(s_{t+1} position, goal of s_t)`` read from the shifted window."""
 
     def forward(self, history: torch.Tensor) -> torch.Tensor:
-        position = history[..., -1, [X, Y]]
-        goal = history[..., -2, [GX, GY]]
+        # slices, not index lists: this runs once per level of every planner search
+        position = history[..., -1, X:Y + 1]
+        goal = history[..., -2, GX:GY + 1]
         return -tracking_cost(position, goal).unsqueeze(-1)
 
 

@@ -39,7 +39,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.adapt import adapt, trajectory_windows
+from pernav.model.adapt import LossFn, adapt, trajectory_windows
 from pernav.model.dynamics import ROAD_MAX, DynamicsModel, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
@@ -133,10 +133,14 @@ _OPTIONAL = ("max_grad_norm", "backtrack")  # the train options that may be null
 
 
 class FTMLTrainer:
-    """Owns one model, its Adam optimizer and its data stream (``RoundBuffers``)."""
+    """Owns one model, its Adam optimizer and its data stream (``RoundBuffers``).
 
-    def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0) -> None:
-        self.model, self.buffers, self.config = model, buffers, config
+    Any :class:`~pernav.model.dynamics.DynamicsModel` (any state size and ``delta``); ``loss_fn`` is the loss
+    of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default)."""
+
+    def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0,
+                 loss_fn: LossFn = multistep_loss) -> None:
+        self.model, self.buffers, self.config, self.loss_fn = model, buffers, config, loss_fn
         self.optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         self.generator = torch.Generator().manual_seed(seed)
         self.skipped = self.clipped = 0
@@ -209,8 +213,9 @@ class FTMLTrainer:
         total = 0.0
         for r, n, batch in self.meta_batches() if batches is None else batches:
             adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
-                            first_order=self.config.first_order, max_norm=self.config.max_grad_norm)
-            total = total + multistep_loss(self.model, batch, params=adapted) * (n / self.config.batch)
+                            first_order=self.config.first_order, max_norm=self.config.max_grad_norm,
+                            loss_fn=self.loss_fn)
+            total = total + self.loss_fn(self.model, batch, params=adapted) * (n / self.config.batch)
         return self._apply(total)
 
     def plain_update(self, batches: list[tuple[int, int, Any]] | None = None) -> float:
@@ -218,7 +223,7 @@ class FTMLTrainer:
         :meth:`meta_update`, from :meth:`plain_batches`."""
         total = 0.0
         for _r, n, batch in self.plain_batches() if batches is None else batches:
-            total = total + multistep_loss(self.model, batch) * (n / self.config.batch)
+            total = total + self.loss_fn(self.model, batch) * (n / self.config.batch)
         return self._apply(total)
 
     def train(self, updates: int, meta: bool) -> list[float]:
@@ -238,7 +243,8 @@ class FTMLTrainer:
         if adapted and params is None:
             with torch.enable_grad():
                 params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True,
-                               max_norm=self.config.max_grad_norm, backtrack=self.config.backtrack)
+                               max_norm=self.config.max_grad_norm, backtrack=self.config.backtrack,
+                               loss_fn=self.loss_fn)
             params = params.detach()
         elif not adapted:
             params = None
@@ -254,7 +260,7 @@ class FTMLTrainer:
         total, count = 0.0, 0
         for group in by_length.values():
             batch = torch.cat(group)
-            total += float(multistep_loss(self.model, batch, params=params)) * batch.shape[0]
+            total += float(self.loss_fn(self.model, batch, params=params)) * batch.shape[0]
             count += batch.shape[0]
         return total / count
 

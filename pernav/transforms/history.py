@@ -110,11 +110,11 @@ class HistoryWindow(Transform):
         if extra not in ((), (1,)):
             raise ValueError(f"action {self.action_key!r} of shape {tuple(action.shape)} is neither "
                              f"categorical nor one-hot over {self.n_actions} actions")
-        index = action.reshape(batch).long()
-        if bool(((index < 0) | (index >= self.n_actions)).any()):
-            raise ValueError(f"action out of range [0, {self.n_actions - 1}]: "
-                             "n_actions does not match the env")
-        return torch.nn.functional.one_hot(index, self.n_actions).to(torch.float32)
+        try:  # one_hot checks the range itself (no second pass over the actions: this runs in every planner step)
+            one_hot = torch.nn.functional.one_hot(action.reshape(batch).long(), self.n_actions)
+        except RuntimeError:
+            raise ValueError(f"action out of range [0, {self.n_actions - 1}]: n_actions does not match the env") from None
+        return one_hot.to(torch.float32)
 
     def initial_window(self, state: torch.Tensor) -> torch.Tensor:
         """The window at reset: ``K`` copies of ``(state, 0)``."""

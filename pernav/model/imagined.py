@@ -1,0 +1,96 @@
+"""ImaginedEnv: any :class:`~pernav.model.dynamics.DynamicsModel` as a TorchRL model env, with your task's reward.
+
+The transition reads ``"history"`` (the :class:`~pernav.transforms.HistoryWindow`), ``"observation"`` and
+``"action"`` and writes the predicted next ``"observation"``, the shifted ``"history"``, the ``"reward"``
+``reward_fn(state, action, next_state)`` and ``"done"``/``"terminated"`` from ``termination_fn(next_state)``
+(never, without one). So a planner (:class:`~pernav.planner.DiscreteTreeSearchPlanner`) or ``env.rollout``
+imagines with the learned model and scores with the task's known reward, as in model-based RL (PETS, GrBAL);
+adapted parameters are swapped in with ``with params.to_module(model): ...``. The navigation's own model env,
+with its tracking reward and route-aware imagination, is :class:`~pernav.model.world_model.ImaginedNavigationEnv`.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> model = DynamicsModel(state_dim=4, n_actions=2, K=2, hidden=(16,))
+    >>> env = ImaginedEnv(model, reward_fn=lambda s, a, n: -n[..., 2].abs(),
+    ...                   termination_fn=lambda n: n[..., 2].abs() > 0.21)
+    >>> start = TensorDict({"observation": torch.zeros(3, 4), "history": torch.zeros(3, 2, 6)}, [3])
+    >>> env.rollout(5, auto_reset=False, tensordict=start, break_when_any_done=False)["next", "reward"].shape
+    torch.Size([3, 5, 1])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs import ModelBasedEnvBase
+from torchrl.modules import WorldModelWrapper
+
+from pernav.model.dynamics import DynamicsModel
+
+__all__ = ["ImaginedEnv"]
+
+RewardFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+TerminationFn = Callable[[torch.Tensor], torch.Tensor]
+
+
+class _Imagine(nn.Module):
+    """One imagined step: next state, next window, reward and done."""
+
+    def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None) -> None:
+        super().__init__()
+        self.model, self.reward_fn, self.termination_fn = model, reward_fn, termination_fn
+
+    def forward(self, observation: torch.Tensor, history: torch.Tensor, action: torch.Tensor):
+        action = action.reshape(history.shape[:-2]) if action.numel() == history.shape[:-2].numel() else action
+        next_state = self.model(history, action)
+        window = self.model.next_window(history, action, next_state)
+        reward = self.reward_fn(observation, action, next_state).reshape(*history.shape[:-2], 1)
+        if self.termination_fn is None:
+            done = torch.zeros(*history.shape[:-2], 1, dtype=torch.bool, device=history.device)
+        else:
+            done = self.termination_fn(next_state).reshape(*history.shape[:-2], 1).bool()
+        return next_state, window, reward.to(next_state.dtype), done, done.clone()
+
+
+class ImaginedEnv(ModelBasedEnvBase):
+    """A learned model's imagination as a TorchRL env (any batch size); see the module docstring.
+
+    Args:
+        model: the dynamics model (any ``state_dim``, ``n_actions``).
+        reward_fn: ``(state [..., S], action [...] (categorical), next_state [..., S]) -> reward [...]``.
+        termination_fn: ``next_state -> bool [...]`` (an imagined failure ends the rollout's reward), or ``None``.
+
+    Reset needs a starting point (``"observation"`` and ``"history"``, e.g. a real env's current tensordict);
+    without one it starts from the zero state.
+    """
+
+    def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
+                 device: str | torch.device = "cpu") -> None:
+        transition = TensorDictModule(_Imagine(model, reward_fn, termination_fn),
+                                      in_keys=["observation", "history", "action"],
+                                      out_keys=["observation", "history", "reward", "done", "terminated"])
+        keep = TensorDictModule(nn.Identity(), in_keys=["reward"], out_keys=["reward"])  # computed with the step
+        super().__init__(WorldModelWrapper(transition, keep), device=device)
+        self.dynamics = model
+        obs = Composite(observation=Unbounded((model.state_dim,)),
+                        history=Unbounded((model.K, model.state_dim + model.n_actions)))
+        self.observation_spec = obs
+        self.state_spec = obs.clone()
+        self.action_spec = Categorical(model.n_actions)
+        self.reward_spec = Unbounded((1,))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        given = tensordict is not None and {"history", "observation"} <= set(tensordict.keys())
+        if given:
+            out = tensordict.select("observation", "history").clone()
+        else:
+            out = self.state_spec.zero(tensordict.shape if tensordict is not None else self.batch_size)
+        out.set("done", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))
+        out.set("terminated", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))
+        return out

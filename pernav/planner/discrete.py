@@ -1,0 +1,284 @@
+"""DiscreteTreeSearchPlanner: model-predictive control by tree search over discrete actions, for any TorchRL env.
+
+TorchRL's MPC planners (``CEMPlanner``, ``MPPIPlanner``) sample continuous actions; this one searches a tree
+of discrete actions. From the current state it expands every action at every level (or, with a beam, the
+``beam_width`` best nodes of each level) for ``planning_horizon`` levels, steps each level's nodes through
+the env in one batched call, so shared prefixes are computed once (``sum_h A^h`` steps instead of
+``H * A^H`` for a flat enumeration), and scores a sequence by the env's own summed reward (rewards after the
+first ``done`` are ignored, as in TorchRL's planners), plus an optional terminal ``value_module``. It plays
+the first action of the best sequence (receding horizon).
+
+Any env whose action spec is ``Categorical`` or ``OneHot`` and that steps batches of any size: a
+``ModelBasedEnvBase`` (a learned model, stepped through its ``world_model`` without ``env.step``'s
+bookkeeping) or any stateless ``EnvBase``. An action mask (``mask_key``: ``[..., A]`` for every level, or
+``[..., H, A]`` one per level) prunes forbidden actions from the tree. The input tensordict may have any
+batch shape; each root is searched on its own, all in the same batched env calls.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> from tensordict.nn import TensorDictModule
+    >>> from torch import nn
+    >>> from torchrl.data import Categorical, Composite, Unbounded
+    >>> from torchrl.envs import ModelBasedEnvBase
+    >>> from torchrl.modules import WorldModelWrapper
+    >>> class Walk(nn.Module):  # a walker on a line: action 0 steps left, 1 stays, 2 steps right
+    ...     def forward(self, x, a):
+    ...         return x + (a.unsqueeze(-1) - 1).float()
+    >>> class Near(nn.Module):  # reward: minus the distance to 3
+    ...     def forward(self, x):
+    ...         return -(x - 3).abs()
+    >>> class Line(ModelBasedEnvBase):
+    ...     def __init__(self):
+    ...         super().__init__(WorldModelWrapper(TensorDictModule(Walk(), ["x", "action"], ["x"]),
+    ...                                            TensorDictModule(Near(), ["x"], ["reward"])))
+    ...         self.observation_spec = Composite(x=Unbounded((1,)))
+    ...         self.action_spec = Categorical(3)
+    ...         self.reward_spec = Unbounded((1,))
+    ...     def _reset(self, td=None, **kwargs):
+    ...         return td
+    >>> planner = DiscreteTreeSearchPlanner(Line(), planning_horizon=3)
+    >>> planner(TensorDict({"x": torch.tensor([[0.0], [5.0]])}, [2]))["action"].tolist()
+    [2, 0]
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.utils import NestedKey
+from torchrl.data import Categorical, Composite, OneHot
+from torchrl.envs import ModelBasedEnvBase
+from torchrl.modules.planners import MPCPlannerBase
+
+__all__ = ["DiscreteTreeSearchPlanner", "SearchResult"]
+
+log = logging.getLogger("pernav.planner")
+
+
+@dataclass
+class SearchResult:
+    """One search per root: the best sequence ``[B, H]``, its return ``[B]`` and the env steps it took."""
+
+    actions: torch.Tensor
+    returns: torch.Tensor
+    evaluations: int
+
+
+def _key(key: NestedKey) -> tuple[str, ...]:
+    return (key,) if isinstance(key, str) else tuple(key)
+
+
+class DiscreteTreeSearchPlanner(MPCPlannerBase):
+    """Exhaustive or beam tree search over a discrete action space, scored by the env's reward.
+
+    Args:
+        env: a batched, stateless env with a ``Categorical`` or ``OneHot`` action spec (e.g. a
+            ``ModelBasedEnvBase`` around a learned model).
+        planning_horizon: H, the levels of the tree (imagined steps).
+        beam_width: keep only this many best nodes per level and root (``None``: exhaustive). A beam at least as
+            wide as the tree is the exhaustive search.
+        reward_key: where the env's step writes its reward (``("next", "reward")`` for TorchRL envs).
+        mask_key: an input entry of booleans, ``[..., A]`` or ``[..., H', A]`` (level ``h`` reads row ``h``):
+            actions it forbids are not expanded. ``None``: every action is allowed.
+        value_module: optional ``TensorDictModule`` reading a leaf's state and writing ``value_key``, added to
+            the return of each complete sequence (a terminal value; not applied after ``done``).
+        value_key: where ``value_module`` writes.
+        action_key: the action entry (read by the env, written by the planner).
+
+    The search is exact: it returns the sequence with the highest return (ties go to the sequence that comes
+    first in the order of the action indices), as a brute-force enumeration of the same tree would. A sequence
+    whose return is NaN never wins; :attr:`nonfinite` counts decisions where some return was not finite.
+    """
+
+    def __init__(self, env, planning_horizon: int, beam_width: int | None = None,
+                 reward_key: NestedKey = ("next", "reward"), mask_key: NestedKey | None = None,
+                 value_module: TensorDictModuleBase | None = None, value_key: NestedKey = "state_value",
+                 action_key: NestedKey = "action") -> None:
+        super().__init__(env, action_key=action_key)
+        if int(planning_horizon) < 1:
+            raise ValueError(f"planning_horizon must be >= 1, got {planning_horizon}")
+        if beam_width is not None and int(beam_width) < 1:
+            raise ValueError(f"beam_width must be >= 1 or None, got {beam_width}")
+        spec = env.full_action_spec[action_key] if isinstance(env.action_spec, Composite) else env.action_spec
+        if not isinstance(spec, (Categorical, OneHot)):
+            raise TypeError(f"DiscreteTreeSearchPlanner needs a Categorical or OneHot action spec, got "
+                            f"{type(spec).__name__} (for continuous actions use torchrl's CEMPlanner or MPPIPlanner)")
+        self.one_hot = isinstance(spec, OneHot)
+        self.n_actions = int(spec.space.n)
+        self.planning_horizon = int(planning_horizon)
+        self.beam_width = None if beam_width is None else int(beam_width)
+        self.reward_key, self.mask_key, self.action_key = _key(reward_key), mask_key, action_key
+        self.value_module, self.value_key = value_module, value_key
+        self.model_based = isinstance(env, ModelBasedEnvBase)
+        self.state_keys = sorted({*env.observation_spec.keys(True, True), *env.state_spec.keys(True, True)}, key=str)
+        self.in_keys = self.state_keys + ([mask_key] if mask_key is not None else [])
+        # the step's entries the hooks read besides the state (reward, done), kept as the env wrote them
+        self._extra_keys = [self._reward_key, "done", "terminated"]
+        self.nonfinite = 0  # decisions where some sequence's return was not finite
+        self.planning_s = 0.0  # wall time spent planning
+        self.last: SearchResult | None = None
+
+    # ----- hooks (a subclass adds task terms here) ----------------------------------------------------
+    def levels(self, roots: TensorDictBase) -> int:
+        """The number of levels searched from ``roots`` (``planning_horizon``)."""
+        return self.planning_horizon
+
+    def allowed(self, roots: TensorDictBase, level: int) -> torch.Tensor:
+        """``[B, A]`` booleans: the actions each root's tree may take at ``level`` (from ``mask_key``)."""
+        if self.mask_key is None:
+            return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool)
+        mask = self._mask if getattr(self, "_mask_of", None) is roots else roots.get(self.mask_key).bool()
+        return mask[:, level] if mask.ndim == 3 else mask
+
+    def step_reward(self, roots: TensorDictBase, children: dict, actions: torch.Tensor, level: int) -> torch.Tensor:
+        """``[B, N]``: the reward of the step that led to each node (the env's, at ``reward_key``). ``children``
+        maps the env's output keys (state, reward, done) to ``[B, N, ...]`` tensors."""
+        reward = children.get(self._reward_key)
+        if reward is None:
+            raise KeyError(f"the env's step wrote no reward at {self.reward_key!r} (reward_key)")
+        return reward.reshape(actions.shape)
+
+    def sequence_reward(self, roots: TensorDictBase, sequences: torch.Tensor) -> torch.Tensor | float:
+        """A term added to the return of each complete sequence ``[B, N, H]`` (0 here)."""
+        return 0.0
+
+    # ----- one batched step ---------------------------------------------------------------------------
+    @property
+    def _reward_key(self) -> NestedKey:
+        # the children are the step's "next" entries (a world model writes them at its root)
+        key = self.reward_key[1:] if self.reward_key[0] == "next" and len(self.reward_key) > 1 else self.reward_key
+        return key[0] if len(key) == 1 else key
+
+    def _program(self) -> list | None:
+        """The world model as (in_keys, out_keys, module) steps run on plain tensors: the TensorDictModules of a
+        ``ModelBasedEnvBase``'s world model called without a TensorDict per call (a third of a decision's time
+        at the navigation's size). ``None`` where the env is not built that way (then ``env.step``)."""
+        if not self.model_based:
+            return None
+        modules = list(self.env.world_model.module) if hasattr(self.env.world_model, "module") \
+            and isinstance(self.env.world_model.module, torch.nn.ModuleList) else [self.env.world_model]
+        if not all(isinstance(m, TensorDictModule) and not m._kwargs for m in modules):
+            return None
+        return [(list(m.in_keys), list(m.out_keys), m.module) for m in modules]
+
+    def _step(self, nodes: dict, actions: torch.Tensor) -> dict:
+        """The children of flat nodes (``{key: [M, ...]}``) after ``actions`` ``[M]``: every entry the env's step
+        writes (next state, reward, done)."""
+        data = dict(nodes)
+        data[self.action_key] = torch.nn.functional.one_hot(actions, self.n_actions) if self.one_hot else actions
+        if not hasattr(self, "_program_cache"):  # the env's world model does not change: inspect it once
+            self._program_cache = self._program()
+        program = self._program_cache
+        if program is not None:
+            for in_keys, out_keys, module in program:
+                out = module(*(data[k] for k in in_keys))
+                data.update(zip(out_keys, out if isinstance(out, tuple) else (out,), strict=True))
+            return data
+        td = TensorDict(batch_size=[actions.shape[0]])
+        for key, value in data.items():
+            td.set(key, value)
+        step = self.env.step(td) if not self.model_based else self.env.world_model(td)
+        out = step.get("next") if not self.model_based else step
+        return {key: out.get(key) for key in out.keys(True, True)}
+
+    @staticmethod
+    def _done(children: dict, shape: tuple[int, int]) -> torch.Tensor | None:
+        done = children.get("done")
+        done = children.get("terminated") if done is None else done
+        return None if done is None else done.reshape(shape).bool()
+
+    # ----- the search ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def search(self, roots: TensorDictBase) -> SearchResult:
+        """The best sequence from each root of a flat ``[B]`` tensordict (see the class docstring)."""
+        B, A = roots.shape[0], self.n_actions
+        H = self.levels(roots)
+        if self.mask_key is not None:  # read once per search, not once per level
+            self._mask, self._mask_of = roots.get(self.mask_key).bool(), roots
+        nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
+        parent_count = 1
+        seqs = torch.zeros(B, 1, 0, dtype=torch.long)
+        ret = torch.zeros(B, 1)
+        alive = None  # [B, N] not done yet (later rewards count); None: no node done so far
+        valid = torch.ones(B, 1, dtype=torch.bool)  # a real node (not padding of a root with fewer nodes)
+        rows = torch.arange(B).unsqueeze(-1)
+        evaluations = 0
+        for level in range(H):
+            # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
+            if B == 1:  # one root (a deployed planner): every node is real, each expands the same actions
+                actions = self.allowed(roots, level)[0].nonzero().squeeze(-1)
+                keep = None if actions.numel() else torch.zeros(1, 1, dtype=torch.bool)
+                actions = actions if actions.numel() else torch.zeros(1, dtype=torch.long)
+                k = parent_count * actions.numel()
+                index = torch.arange(parent_count).repeat_interleave(actions.numel())
+                parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
+            else:
+                allowed = (valid.unsqueeze(-1) & self.allowed(roots, level).unsqueeze(1)).reshape(B, -1)  # [B, N*A]
+                k = max(int(allowed.sum(-1).max()), 1)
+                pick = torch.argsort((~allowed).to(torch.int8), dim=-1, stable=True)[:, :k]  # allowed first, in order
+                keep = allowed.gather(-1, pick)
+                parent, action = pick.div(A, rounding_mode="floor"), pick.remainder(A)
+                index = (parent + rows * parent_count).reshape(-1)  # into the flat [B * N] nodes
+            out = self._step({key: v[index] for key, v in nodes.items()}, action.reshape(-1))
+            children = {key: out[key].reshape(B, k, *out[key].shape[1:]) for key in self.state_keys}
+            children.update({key: out[key] for key in self._extra_keys if key in out})
+            evaluations += B * k
+            reward = self.step_reward(roots, children, action, level)
+            ret = ret.gather(-1, parent)
+            if alive is None:  # no node has finished: every reward counts
+                ret = ret + reward
+            else:
+                alive = alive.gather(-1, parent)
+                ret = ret + torch.where(alive, reward, 0.0)
+            done = self._done(children, (B, k))
+            if done is not None:
+                alive = ~done if alive is None else alive & ~done
+            seqs = torch.cat([seqs.reshape(B * seqs.shape[1], level)[index].reshape(B, k, level), action.unsqueeze(-1)], -1)
+            nodes = {key: out[key] for key in self.state_keys}  # flat [B * k, ...]
+            parent_count = k
+            valid = keep if keep is not None else torch.ones(B, k, dtype=torch.bool)
+            if keep is not None:
+                ret = torch.where(valid, ret, torch.full_like(ret, float("-inf")))
+            if self.beam_width is not None and k > self.beam_width and level + 1 < H:
+                scores = torch.nan_to_num(ret, nan=float("-inf"))
+                top = torch.topk(scores, self.beam_width, dim=-1, sorted=False).indices.sort(-1).values
+                flat_top = (top + rows * k).reshape(-1)
+                nodes = {key: v[flat_top] for key, v in nodes.items()}
+                seqs, ret, valid = seqs[rows, top], ret.gather(-1, top), valid.gather(-1, top)
+                alive = None if alive is None else alive.gather(-1, top)
+                parent_count = self.beam_width
+        nodes = {key: v.reshape(B, parent_count, *v.shape[1:]) for key, v in nodes.items()}
+        if self.value_module is not None:
+            leaves = TensorDict(batch_size=[ret.numel()])
+            for key, v in nodes.items():
+                leaves.set(key, v.reshape(ret.numel(), *v.shape[2:]))
+            value = self.value_module(leaves).get(self.value_key).reshape(ret.shape)
+            ret = ret + (value.to(ret.dtype) if alive is None else torch.where(alive, value.to(ret.dtype), 0.0))
+        ret = ret + self.sequence_reward(roots, seqs)
+        ret = torch.where(valid, ret, torch.full_like(ret, float("-inf")))
+        finite = torch.isfinite(ret) | ~valid
+        if not bool(finite.all()):
+            self.nonfinite += 1
+            log.warning("DiscreteTreeSearchPlanner: %d non-finite sequence returns", int((~finite).sum()))
+        best = torch.nan_to_num(ret, nan=float("-inf")).argmax(-1)  # the first best: ties go to the lower sequence
+        return SearchResult(seqs[torch.arange(B), best], ret[torch.arange(B), best], evaluations)
+
+    def planning(self, td: TensorDictBase) -> torch.Tensor:
+        missing = [k for k in self.in_keys if k not in td.keys(True, True)]
+        if missing:
+            raise KeyError(f"{type(self).__name__} needs {missing} in the tensordict")
+        t0 = time.perf_counter()
+        self.last = self.search(td.reshape(-1))
+        first = self.last.actions[:, 0]
+        self.planning_s += time.perf_counter() - t0
+        if self.one_hot:
+            first = torch.nn.functional.one_hot(first, self.n_actions)
+            return first.reshape(*td.shape, self.n_actions)
+        return first.reshape(td.shape)
+

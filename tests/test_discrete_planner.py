@@ -1,0 +1,214 @@
+"""The generic DiscreteTreeSearchPlanner against brute force, and the paper planner (now a configuration of it)
+against the decisions of the planner it replaced (issue #32).
+
+The toy env: a random nonlinear system with a per-action reward and a ``done`` flag, as a ``ModelBasedEnvBase``
+(stepped through its world model) and as a plain stateless ``EnvBase`` (stepped with ``env.step``).
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.data import Categorical, Composite, OneHot, Unbounded
+from torchrl.envs import EnvBase, ModelBasedEnvBase, check_env_specs
+from torchrl.modules import WorldModelWrapper
+
+from pernav.model import DynamicsModel
+from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.planner import DiscreteTreeSearchPlanner, TreeSearchPlanner
+
+D, A = 3, 4
+FIXTURE = Path(__file__).parent / "data" / "paper_planner_448c7c6.pt"
+
+
+class _Dynamics(nn.Module):
+    """x' = tanh(W_a x + b_a); reward -(|x' - target|^2) + c_a; done when x'_0 > 0.8."""
+
+    def __init__(self, seed: int, one_hot: bool = False) -> None:
+        super().__init__()
+        g = torch.Generator().manual_seed(seed)
+        self.W = torch.randn(A, D, D, generator=g) * 0.9
+        self.b = torch.randn(A, D, generator=g) * 0.5
+        self.c = torch.randn(A, generator=g) * 0.3
+        self.target = torch.randn(D, generator=g) * 0.5
+        self.one_hot = one_hot
+
+    def index(self, action: torch.Tensor) -> torch.Tensor:
+        return action.argmax(-1) if self.one_hot else action
+
+    def forward(self, x: torch.Tensor, action: torch.Tensor):
+        a = self.index(action)
+        nxt = torch.tanh((self.W[a] @ x.unsqueeze(-1)).squeeze(-1) + self.b[a])
+        reward = -((nxt - self.target) ** 2).sum(-1, keepdim=True) + self.c[a].unsqueeze(-1)
+        return nxt, reward, (nxt[..., :1] > 0.8)
+
+
+class _Reward(nn.Module):
+    def forward(self, reward: torch.Tensor) -> torch.Tensor:
+        return reward
+
+
+def _specs(env, one_hot: bool) -> None:
+    env.observation_spec = Composite(x=Unbounded((D,)), shape=env.batch_size)
+    env.action_spec = OneHot(A) if one_hot else Categorical(A)
+    env.reward_spec = Unbounded((1,))
+
+
+class ToyModelEnv(ModelBasedEnvBase):
+    def __init__(self, dynamics: _Dynamics) -> None:
+        transition = TensorDictModule(dynamics, in_keys=["x", "action"], out_keys=["x", "step_reward", "done"])
+        super().__init__(WorldModelWrapper(transition, TensorDictModule(_Reward(), ["step_reward"], ["reward"])))
+        _specs(self, dynamics.one_hot)
+
+    def _reset(self, tensordict=None, **kwargs):
+        shape = tensordict.shape if tensordict is not None else self.batch_size
+        return TensorDict({"x": torch.zeros(*shape, D), "done": torch.zeros(*shape, 1, dtype=torch.bool),
+                           "terminated": torch.zeros(*shape, 1, dtype=torch.bool)}, shape)
+
+
+class ToyEnv(EnvBase):
+    """The same system as a plain stateless env (its state is the input tensordict)."""
+
+    batch_locked = False
+
+    def __init__(self, dynamics: _Dynamics) -> None:
+        super().__init__()
+        self.dynamics = dynamics
+        _specs(self, dynamics.one_hot)
+
+    def _reset(self, tensordict=None, **kwargs):
+        shape = tensordict.shape if tensordict is not None else self.batch_size
+        return TensorDict({"x": torch.zeros(*shape, D), "done": torch.zeros(*shape, 1, dtype=torch.bool),
+                           "terminated": torch.zeros(*shape, 1, dtype=torch.bool)}, shape)
+
+    def _step(self, tensordict):
+        x, reward, done = self.dynamics(tensordict["x"], tensordict["action"])
+        return TensorDict({"x": x, "reward": reward, "done": done, "terminated": done}, tensordict.shape)
+
+    def _set_seed(self, seed):
+        return seed
+
+
+class Value(nn.Module):
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return 2.0 * x[..., 1:2]
+
+
+def _brute_force(dyn: _Dynamics, x0: torch.Tensor, H: int, mask: torch.Tensor | None, value: bool):
+    """Every allowed sequence rolled out on its own; the best (first on ties) sequence and return per root."""
+    best_seqs, best_rets = [], []
+    for b in range(x0.shape[0]):
+        sets = [[a for a in range(A) if mask is None or bool(mask[b, h, a] if mask.ndim == 3 else mask[b, a])]
+                for h in range(H)]
+        best, best_ret = None, -float("inf")
+        for seq in itertools.product(*sets):
+            x, ret, alive = x0[b], 0.0, True
+            for a in seq:
+                act = torch.nn.functional.one_hot(torch.tensor(a), A) if dyn.one_hot else torch.tensor(a)
+                x, r, done = dyn(x, act)
+                ret += float(r) if alive else 0.0
+                alive = alive and not bool(done)
+            if value and alive:
+                ret += float(2.0 * x[1])
+            if ret > best_ret + 1e-6:  # strictly better: ties keep the earlier sequence
+                best, best_ret = seq, ret
+        best_seqs.append(best)
+        best_rets.append(best_ret)
+    return torch.tensor(best_seqs), torch.tensor(best_rets)
+
+
+@pytest.mark.parametrize("model_based", [True, False])
+@pytest.mark.parametrize("H,mask_kind,one_hot,value", [(1, None, False, False), (2, "all", False, False),
+                                                       (3, "level", False, True), (3, None, True, False),
+                                                       (4, "level", True, False), (4, "all", False, True)])
+def test_equals_brute_force(model_based: bool, H: int, mask_kind: str | None, one_hot: bool, value: bool) -> None:
+    for seed in range(3):
+        dyn = _Dynamics(seed, one_hot)
+        env = ToyModelEnv(dyn) if model_based else ToyEnv(dyn)
+        g = torch.Generator().manual_seed(100 + seed)
+        B = 5
+        roots = TensorDict({"x": torch.randn(B, D, generator=g)}, [B])
+        mask = None
+        if mask_kind is not None:
+            mask = torch.rand(B, H, A, generator=g) < 0.6 if mask_kind == "level" else torch.rand(B, A, generator=g) < 0.6
+            mask[..., 1] = True  # at least one action everywhere
+            roots["mask"] = mask
+        value_module = TensorDictModule(Value(), ["x"], ["state_value"]) if value else None
+        planner = DiscreteTreeSearchPlanner(env, H, mask_key="mask" if mask is not None else None,
+                                            value_module=value_module)
+        seqs, rets = _brute_force(dyn, roots["x"], H, mask, value)
+        result = planner.search(roots.clone())
+        assert torch.equal(result.actions, seqs)
+        assert torch.allclose(result.returns, rets.float(), atol=1e-4)
+        action = planner(roots.clone())["action"]
+        first = action.long().argmax(-1) if one_hot else action
+        assert torch.equal(first, seqs[:, 0])
+        if mask is not None:
+            assert bool((mask[torch.arange(B), 0, first] if mask.ndim == 3 else mask[torch.arange(B), first]).all())
+        if H > 1:  # shared prefixes: fewer env steps than a flat enumeration of the same tree
+            assert result.evaluations < H * B * A ** H
+
+
+def test_batched_leading_dims_equal_one_by_one() -> None:
+    dyn = _Dynamics(7)
+    planner = DiscreteTreeSearchPlanner(ToyModelEnv(dyn), 3, mask_key="mask")
+    g = torch.Generator().manual_seed(0)
+    roots = TensorDict({"x": torch.randn(2, 3, D, generator=g), "mask": torch.rand(2, 3, A, generator=g) < 0.5}, [2, 3])
+    roots["mask"][..., 2] = True
+    batched = planner(roots.clone())["action"]
+    assert batched.shape == (2, 3)
+    for i, j in itertools.product(range(2), range(3)):
+        assert int(planner(roots[i, j].clone())["action"]) == int(batched[i, j])
+
+
+@pytest.mark.parametrize("H", [2, 3, 4])
+def test_full_beam_equals_exhaustive_and_narrow_beam_is_no_better(H: int) -> None:
+    for seed in range(3):
+        env = ToyModelEnv(_Dynamics(seed))
+        roots = TensorDict({"x": torch.randn(6, D, generator=torch.Generator().manual_seed(seed))}, [6])
+        full = DiscreteTreeSearchPlanner(env, H).search(roots.clone())
+        wide = DiscreteTreeSearchPlanner(env, H, beam_width=A ** H).search(roots.clone())
+        assert torch.equal(wide.actions, full.actions) and torch.equal(wide.returns, full.returns)
+        narrow = DiscreteTreeSearchPlanner(env, H, beam_width=2).search(roots.clone())
+        assert bool((narrow.returns <= full.returns + 1e-6).all()) and narrow.evaluations < full.evaluations
+
+
+def test_refuses_continuous_actions_and_bad_arguments() -> None:
+    env = ToyModelEnv(_Dynamics(0))
+    with pytest.raises(ValueError, match="planning_horizon"):
+        DiscreteTreeSearchPlanner(env, 0)
+    with pytest.raises(ValueError, match="beam_width"):
+        DiscreteTreeSearchPlanner(env, 2, beam_width=0)
+    env.action_spec = Unbounded((1,))
+    with pytest.raises(TypeError, match="Categorical or OneHot"):
+        DiscreteTreeSearchPlanner(env, 2)
+
+
+def test_toy_env_specs_pass() -> None:
+    check_env_specs(ToyModelEnv(_Dynamics(0)))
+
+
+# ----- the paper planner: the same decisions as the search it replaced ------------------------------------------
+@pytest.mark.parametrize("index", range(5))
+def test_paper_planner_decides_as_before(index: int) -> None:
+    """Decisions recorded with the paper planner of commit 448c7c6 (its own level-by-level search; made by
+    tests/data/make_paper_planner_fixture.py): the same model and roots give the same actions and sequences, and
+    one root at a time (as the study calls it) bitwise the same costs. All roots at once, the MLP's batched
+    matrix products round differently (costs of ~1e4 m^2 from deliberately explosive models)."""
+    case = torch.load(FIXTURE, weights_only=False)[index]
+    options = dict(case["case"])
+    model = DynamicsModel(n_actions=options.pop("n_actions"), hidden=(32, 32))
+    model.load_state_dict(case["model"])
+    roots = TensorDict(case["roots"], [case["actions"].shape[0]])
+    planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(model)), **options)
+    assert torch.equal(planner(roots.clone())["action"], case["actions"])
+    assert torch.equal(planner.last.actions, case["sequences"])
+    for i in range(0, roots.shape[0], 3):
+        assert int(planner(roots[i].clone())["action"]) == int(case["actions"][i])
+        assert torch.equal(-planner.last.returns[0], case["costs"][i])
