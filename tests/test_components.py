@@ -360,10 +360,14 @@ def test_real_env_specs_with_history() -> None:
 
 
 # ----- docs -------------------------------------------------------------------------------------------
-def test_docs_examples_run(tmp_path, monkeypatch) -> None:
-    blocks = re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
-    assert len(blocks) >= 5
+def _doc_blocks() -> list[str]:
+    return re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
+
+
+@pytest.mark.parametrize("index", range(7))
+def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch) -> None:
+    """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it)."""
+    blocks = _doc_blocks()
+    assert len(blocks) == 7  # a new example: add it to the range above
     monkeypatch.chdir(tmp_path)
-    namespace: dict = {}
-    for i, block in enumerate(blocks):
-        exec(compile(block, f"{DOCS.name}[block {i}]", "exec"), namespace)  # noqa: S102
+    exec(compile(blocks[index], f"{DOCS.name}[block {index}]", "exec"), {"__name__": "__docs__"})  # noqa: S102

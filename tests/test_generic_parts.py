@@ -96,3 +96,10 @@ def test_packages_export_their_public_names():
     assert "NavigationEnv" in dir(pernav.env)
     with pytest.raises(AttributeError, match="no attribute"):
         pernav.world.not_a_name  # noqa: B018
+
+
+@pytest.mark.parametrize("bad", [7, -1])
+def test_history_window_refuses_an_action_outside_its_range(bad):
+    window = HistoryWindow(K=2, n_actions=7)
+    with pytest.raises(ValueError, match=r"action out of range \[0, 6\]"):
+        window.next_window(torch.zeros(3, 2, 21), torch.tensor([0, bad, 1]), torch.zeros(3, 14))

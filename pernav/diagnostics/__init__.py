@@ -1,5 +1,9 @@
-"""Tools to look at model error and plans: a true-dynamics world model (``TrueDynamicsEnv``)."""
+"""Tools to look at model error and plans: a true-dynamics world model (``TrueDynamicsEnv``), paired bootstrap
+statistics (:mod:`pernav.diagnostics.stats`, light: numpy only) and the planning-error panel."""
 
-from pernav.diagnostics.true_model import TrueDynamicsEnv
+from pernav._lazy import lazy_exports
 
-__all__ = ["TrueDynamicsEnv"]
+_NAMES = {"TrueDynamicsEnv": "pernav.diagnostics.true_model",
+          **{name: "pernav.diagnostics.stats" for name in ("bootstrap_ci", "gap_closed", "paired_difference")}}
+__all__ = sorted(_NAMES)
+__getattr__, __dir__ = lazy_exports(__name__, _NAMES)
