@@ -189,7 +189,7 @@ def plot(results: dict[str, dict[str, list[list[float]]]], path: Path, args: arg
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(7, 4.4))
     rounds = np.arange(1, args.online + 1)
     for method in METHODS:
         per_round = np.array([[np.mean(eps) for eps in s[method]] for s in results.values()])  # [seeds, rounds]
@@ -199,7 +199,7 @@ def plot(results: dict[str, dict[str, list[list[float]]]], path: Path, args: arg
     ax.set_xlabel("online round (a new task each round)")
     ax.set_ylabel("return per episode")
     ax.set_title(f"CartPole, dynamics changing every round ({len(results)} seeds, 95 % CI)")
-    ax.legend()
+    ax.legend(ncol=len(METHODS), loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
