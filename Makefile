@@ -10,7 +10,7 @@ OUT ?= runs/default
 setup: $(STAMP)
 
 # torch is pinned first so that the project's `torch>=` range resolves to the local CPU wheel
-# instead of pulling a multi-GB CUDA build (see FIELD_NOTES.md).
+# instead of pulling a multi-GB CUDA build from PyPI's default index.
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip

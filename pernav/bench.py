@@ -41,7 +41,7 @@ def bench_sim(quick: bool = False) -> dict[str, Any]:
     ours = NavigationEnv("Town3", config={"n_traffic": 8})
     ours_rate = _steps_per_second(ours, lambda info: info["explore_action"], steps, options={"route": 0})
     # The stock env is created after ours: creating it mutates IDMVehicle class constants
-    # process-wide (FIELD_NOTES.md); our traffic does not read them.
+    # process-wide (highway-env's intersection env sets them on creation); our traffic does not read them.
     stock = gym.make("intersection-v2")
     stock.action_space.seed(0)
     stock_rate = _steps_per_second(stock, lambda info: stock.action_space.sample(), steps // 4)
