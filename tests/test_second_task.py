@@ -110,3 +110,23 @@ def test_cartpole_recipe_end_to_end(tmp_path: Path) -> None:
     assert (out / "returns.png").stat().st_size > 1000 and "adapt - sysid" in (out / "summary.md").read_text()
     again = subprocess.run([sys.executable, str(RECIPE), str(out), *small], capture_output=True, text=True)
     assert again.returncode == 2 and "exists" in again.stderr and "Traceback" not in again.stderr
+
+
+def test_imagined_env_passes_check_env_specs_and_stops_rewarding_after_done() -> None:
+    from torchrl.envs import check_env_specs
+
+    from pernav.model import ImaginedEnv
+    from pernav.planner import DiscreteTreeSearchPlanner
+
+    torch.manual_seed(0)
+    model = DynamicsModel(state_dim=2, n_actions=3, K=1, hidden=(8,))
+    env = ImaginedEnv(model, reward_fn=lambda s, a, n: -n.pow(2).sum(-1), termination_fn=lambda n: n[..., 0] > 100)
+    check_env_specs(env)
+    start = TensorDict({"observation": torch.zeros(4, 2), "history": torch.zeros(4, 1, 5)}, [4])
+    rollout = env.rollout(3, auto_reset=False, tensordict=start, break_when_any_done=False)
+    assert rollout["next", "observation"].shape == (4, 3, 2) and rollout["next", "reward"].shape == (4, 3, 1)
+    # the reward is reward_fn of the imagined transition, the model's own prediction
+    with torch.no_grad():
+        first = model(start["history"], rollout["action"][:, 0])
+    assert torch.allclose(rollout["next", "reward"][:, 0, 0], -first.pow(2).sum(-1))
+    assert DiscreteTreeSearchPlanner(env, 2)(start.clone())["action"].shape == (4,)
