@@ -8,6 +8,7 @@ Example:
     $ pernav bench sim --json
     $ pernav study --preset default --out runs/default --workers 2
     $ pernav bench planner --json
+    $ pernav play --town Town1 --route 0 --policy oracle --user user3 --record drives/
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pernav.planner.factory import parse_planner_options
 from pernav.study.config import COLLECT, METHODS
 from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
+from pernav.world.layout import PLAYBACK
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
@@ -52,11 +54,7 @@ def _drive(args: argparse.Namespace) -> None:
     if not 0 <= args.traffic <= MAX_TRAFFIC:
         raise UsageError(f"--traffic must be in [0, {MAX_TRAFFIC}], got {args.traffic}")
     if args.gif is not None:  # checked before driving, not after the first route
-        gif = Path(args.gif)
-        if gif.suffix.lower() != ".gif":
-            raise UsageError(f"--gif {args.gif!r} must name a .gif file")
-        if not gif.parent.is_dir():
-            raise UsageError(f"--gif {args.gif!r}: folder {str(gif.parent)!r} does not exist")
+        _check_output_file("--gif", args.gif, ".gif")
     context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
     results = drive_routes(args.town, args.policy, args.user, routes=args.routes, context=context,
                            seed=args.seed, n_traffic=args.traffic, gif=args.gif)
@@ -70,6 +68,77 @@ def _drive(args: argparse.Namespace) -> None:
     s = results["summary"]
     print(f"mean tracking cost {s['tracking_cost']:.0f}, collisions {s['collisions']}, "
           f"completion {s['completion']:.0%}")
+
+
+def _check_output_file(option: str, value: str, suffix: str) -> None:
+    """A file the command will write: the right suffix, in a folder that exists (checked before any work)."""
+    path = Path(value)
+    if path.suffix.lower() != suffix:
+        raise UsageError(f"{option} {value!r} must name a {suffix} file")
+    if not path.parent.is_dir():
+        raise UsageError(f"{option} {value!r}: folder {str(path.parent)!r} does not exist")
+
+
+PLAY_POLICIES = ("explore", "oracle")  # pernav.play.loop.POLICIES (not imported here: it loads the env)
+PLAY_INPUTS = ("keyboard", "joystick")
+
+
+def _play(args: argparse.Namespace) -> None:
+    """A person drives a route (or the scripted bot, ``--headless``); checks everything before the window opens."""
+    if args.policy not in PLAY_POLICIES:
+        raise UsageError(f"--policy {args.policy!r}: choose one of {', '.join(PLAY_POLICIES)}")
+    if args.input not in PLAY_INPUTS:
+        raise UsageError(f"--input {args.input!r}: choose one of {', '.join(PLAY_INPUTS)}")
+    if args.playback not in PLAYBACK:
+        raise UsageError(f"--playback {args.playback!r}: choose one of {', '.join(PLAYBACK)}")
+    if args.town not in TOWN_NAMES:
+        raise UsageError(f"unknown town {args.town!r}; choose one of {', '.join(TOWN_NAMES)}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
+    if not 0 <= args.traffic <= MAX_TRAFFIC:
+        raise UsageError(f"--traffic must be in [0, {MAX_TRAFFIC}], got {args.traffic}")
+    if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
+        raise UsageError(f"--record {args.record!r} exists and is not a folder")
+    if args.screenshot is not None:
+        _check_output_file("--screenshot", args.screenshot, ".png")
+    from pernav.play.controls import JoystickControls, KeyboardControls
+    from pernav.play.loop import PlaySession, make_speaker
+    from pernav.play.record import save_drive
+
+    context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
+    if "equipment" not in context and not args.headless:  # the oracle times its prompts for the person's device
+        context["equipment"] = "wheel" if args.input == "joystick" else "keyboard"
+    speaker = make_speaker(args.audio)  # before any window: a missing device asked for is an error
+    session = PlaySession(args.town, args.route, args.user, context=context, policy=args.policy, seed=args.seed,
+                          n_traffic=args.traffic, playback=args.playback, window=not args.headless,
+                          speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at)
+    try:
+        if not args.headless:
+            session.controls = JoystickControls() if args.input == "joystick" else KeyboardControls()
+        result = session.run()
+    finally:
+        session.close()
+    saved = None
+    if args.record is not None and result.trajectory is not None:
+        import time
+
+        name = f"{args.town}-r{args.route}-{args.policy}-{time.strftime('%Y%m%d-%H%M%S')}"
+        metrics = {**result.metrics, "frames": result.frame_stats()}
+        saved = save_drive(result.trajectory, metrics, args.record, name)
+    if args.json:
+        print(json.dumps({**result.metrics, "frames": result.frame_stats(),
+                          "record": None if saved is None else str(saved),
+                          "screenshot": None if session.shot is None else str(session.shot)}, indent=2))
+        return
+    m = result.metrics
+    state = "quit" if m["interrupted"] else ("arrived" if m["completed"] else "not arrived")
+    print(f"{args.town} route {args.route}: {state} after {m.get('time', 0):.0f} s, tracking cost "
+          f"{m.get('tracking_cost', 0):.0f}, collisions {m.get('vehicle_collisions', 0)}, kerb strikes "
+          f"{m.get('edge_strikes', 0)}, missed turns {m.get('missed_turns', 0)}, re-routes {m.get('reroutes', 0)}")
+    if saved is not None:
+        print(f"recorded: {saved}")
+    if session.shot is not None:
+        print(f"screenshot: {session.shot}")
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -106,6 +175,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--gif", help="write an animated replay of the first route to this file")
     p.set_defaults(func=_drive)
+
+    p = sub.add_parser("play", help="drive a route yourself (keyboard or wheel) with the navigation's prompts")
+    p.add_argument("--town", default="Town1", help=f"one of {', '.join(TOWN_NAMES)} (default Town1)")
+    p.add_argument("--route", type=int, default=0, help="route index 0-9 (default 0)")
+    p.add_argument("--user", default="user1",
+                   help="who the oracle times its prompts for (and the car): user1..user7 or a profile file")
+    for key, choices in CONTEXT_CHOICES.items():
+        p.add_argument(f"--{key}", choices=choices, help=f"context override ({key})")
+    p.add_argument("--policy", default="explore", help="explore (default) or oracle")
+    p.add_argument("--input", default="keyboard", help="keyboard (arrows/WASD; default) or joystick (a wheel)")
+    p.add_argument("--playback", default="normal", help="speed of the spoken prompts: slower, normal, faster")
+    p.add_argument("--record", metavar="DIR", help="save the drive (study format) and its metrics in this folder")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--traffic", type=int, default=8, help="traffic cars around the driver (default 8)")
+    p.add_argument("--headless", action="store_true", help="no window: a scripted bot drives (demos, tests)")
+    p.add_argument("--audio", dest="audio", action="store_true", default=None,
+                   help="require sound (an error without an audio device; default: sound if there is a device)")
+    p.add_argument("--no-audio", dest="audio", action="store_false", help="prompts as text only")
+    p.add_argument("--screenshot", metavar="PNG", help="save a picture of the window (one second after the first "
+                   "prompt, or at --screenshot-at)")
+    p.add_argument("--screenshot-at", type=float, metavar="SECONDS", help="time of the drive for --screenshot")
+    p.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    p.set_defaults(func=_play)
 
     p = sub.add_parser("bench", help="benchmarks, as ratios measured in one run")
     p.add_argument("which", nargs="?", default="all", choices=[*BENCH_CHOICES, "all"])

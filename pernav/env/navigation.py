@@ -18,6 +18,7 @@ Example:
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +39,9 @@ from pernav.world.drivers import (
     resolve,
 )
 from pernav.world.files import DataFileError, is_file, read_data_file
+from pernav.world.layout import N_INSTRUCTIONS, PLAYBACK
 from pernav.world.routing import Route, RouteError, plan_route
-from pernav.world.simulation import N_INSTRUCTIONS, PLAYBACK, World
+from pernav.world.simulation import World
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
 
 STATE_DIM = 14
@@ -134,6 +136,10 @@ class NavigationEnv(gym.Env):
         self.world: World | None = None
         self._explore = explore_policy()
         self._viewer = None
+        # observers of a step as it happens (pernav.play: speak the prompt, draw and pace every frame); None in
+        # the simulated drives: a step then runs exactly as without them
+        self.on_prompt: Callable[[int, str], None] | None = None  # (instruction, playback) played
+        self.on_frame: Callable[[], None] | None = None  # after each world frame
 
     # ----- helpers ------------------------------------------------------------------------------
     def decode(self, action: int) -> tuple[int, str]:
@@ -221,6 +227,8 @@ class NavigationEnv(gym.Env):
         if played:
             self.world.ego.hear(instruction, playback, self.world.time)
             self._played.append((instruction, self.progress, self.reroutes))
+            if self.on_prompt is not None:
+                self.on_prompt(instruction, playback)
             self.repeat = 0
         else:
             self.repeat += 1
@@ -228,6 +236,8 @@ class NavigationEnv(gym.Env):
         before = self.world.ego.position.copy()
         for _ in range(self.config["frequency"]):
             self.world.frame()
+            if self.on_frame is not None:
+                self.on_frame()
         self.odometer += float(np.linalg.norm(self.world.ego.position - before))
         self.time += 1.0
         self.world.maintain_traffic()
@@ -259,11 +269,14 @@ class NavigationEnv(gym.Env):
         memo = self.world.shared()
         memo.update({id(self.route): self.route, id(self.driver): self.driver, id(self.profile): self.profile,
                      id(self._explore): self._explore, id(self._oracle): self._oracle})
-        viewer, self._viewer = self._viewer, None
+        # the viewer, the observers and a person's controls stay with this env: the copy is drawn by no one and
+        # driven by the simulated driver (a planner's branch imagines the driver it models)
+        detached = (self._viewer, self.on_prompt, self.on_frame, self.world.ego.external)
+        self._viewer = self.on_prompt = self.on_frame = self.world.ego.external = None
         try:
             twin = copy.deepcopy(self, memo)
         finally:
-            self._viewer = viewer
+            self._viewer, self.on_prompt, self.on_frame, self.world.ego.external = detached
         twin.world.after_copy(memo, seed)
         return twin
 

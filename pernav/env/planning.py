@@ -31,8 +31,8 @@ import numpy as np
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
+from pernav.world.layout import N_INSTRUCTIONS
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
-from pernav.world.simulation import N_INSTRUCTIONS
 
 __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",
            "explore_plan", "plan_goals", "route_ahead"]

@@ -19,8 +19,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
+from pernav.world.layout import audio_duration
 from pernav.world.routing import Manoeuvre, Route
-from pernav.world.simulation import SPEED_RING, audio_duration
+from pernav.world.simulation import SPEED_RING
 
 TURN = {"left": 1, "right": 2}
 PREPARE = {"left": 3, "right": 4}

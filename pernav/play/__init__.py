@@ -1,0 +1,20 @@
+"""Interactive play (``pernav play``): a person drives a town, hears the prompts, and the drive is recorded as data.
+
+The names below load on first use (importing ``pernav.play`` loads neither pygame nor highway-env).
+"""
+
+from pernav._lazy import lazy_exports
+
+_EXPORTS = {
+    "JoystickControls": "pernav.play.controls",
+    "KeyboardControls": "pernav.play.controls",
+    "PlaySession": "pernav.play.loop",
+    "ScriptedControls": "pernav.play.controls",
+    "load_drive": "pernav.play.record",
+    "save_drive": "pernav.play.record",
+    "Speaker": "pernav.play.audio",
+    "speech_file": "pernav.play.audio",
+    "wav_duration": "pernav.play.audio",
+}
+__all__ = sorted(_EXPORTS)
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

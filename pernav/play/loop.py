@@ -1,0 +1,333 @@
+"""A person at the wheel: the real-time play loop.
+
+:class:`PlaySession` drives one route of a town with the study's navigation env (the TorchRL env with its history
+window, :func:`pernav.trainer.collect.history_env`), so every decision step is what the study records. The
+navigation policy chooses an instruction once per simulated second exactly as in the study (the env's prompt rule
+says whether it is played: then it is heard by the simulated driver, spoken by the speaker and shown); the car is
+driven by the controls (:mod:`pernav.play.controls`). The env calls back after every world frame: the loop draws
+there, reads the window's events and paces the drive to the wall clock.
+
+Real time: world frame ``n`` is due ``n / frequency`` seconds after the start. With fewer world frames per second
+than the window's ``fps`` each frame is drawn ``ceil(fps / frequency)`` times, the cars placed part of the way from
+their last frame to this one (the picture lags the world by one frame, 0.1 s); a picture already late is skipped,
+and a loop that falls far behind (a stall) restarts its clock rather than rushing to catch up.
+
+Policies: ``"explore"``, ``"oracle"`` (the rule timed for the chosen user's profile) or any callable that takes the
+step's TensorDict (observation, history, route_ahead, action_mask, explore_future, ...) and returns it with an
+``"action"`` (e.g. a study's MPC policy module; in the env's action space: 7 instructions, or 21 with playback).
+
+Example (headless: the scripted bot drives, nothing is drawn):
+    >>> result = PlaySession("Town1", 0, n_traffic=2).run()
+    >>> result.metrics["completed"], result.trajectory["history"].shape[1:]
+    (True, torch.Size([5, 21]))
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDictBase
+
+from pernav.env.navigation import load_user
+from pernav.play.controls import ScriptedControls
+from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
+from pernav.world.layout import ACTION_NAMES, PLAYBACK, audio_duration
+from pernav.world.towns import TOWN_NAMES, TownError, get_town
+
+__all__ = ["POLICIES", "PlayError", "PlayQuit", "PlayResult", "PlaySession", "make_speaker"]
+
+POLICIES = ("explore", "oracle")
+MAX_STEPS = 2000  # the env's time limit ends a drive far earlier; this only bounds a runaway loop
+
+
+class PlayError(ValueError):
+    """Bad play settings (reported by ``pernav play`` in one line)."""
+
+
+class PlayQuit(Exception):
+    """The person quit (Esc, Q, closing the window)."""
+
+
+@dataclass
+class PlayResult:
+    """A finished (or quit) drive: its ``[T]`` trajectory (``None`` if quit before the first step), its metrics and
+    the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing)."""
+
+    trajectory: TensorDictBase | None
+    metrics: dict[str, Any]
+    frame_ms: list[float] = field(default_factory=list)
+
+    def frame_stats(self) -> dict[str, float]:
+        """Median and 95th percentile of the frame times (ms)."""
+        if not self.frame_ms:
+            return {"median_ms": math.nan, "p95_ms": math.nan, "frames": 0}
+        ordered = sorted(self.frame_ms)
+        return {"median_ms": round(statistics.median(ordered), 3),
+                "p95_ms": round(ordered[min(int(0.95 * len(ordered)), len(ordered) - 1)], 3), "frames": len(ordered)}
+
+
+def make_speaker(audio: bool | None) -> Any:
+    """The speaker of the prompts: ``None`` (text only) when ``audio`` is False, or when it is None (the default:
+    sound if possible) and no speaker or device is there; with ``audio=True`` a missing one is a :class:`PlayError`.
+    ``pernav.play.audio`` is loaded here, so play works (text only) without it."""
+    if audio is False:
+        return None
+    try:
+        from pernav.play.audio import Speaker
+    except ImportError as exc:
+        if audio:
+            raise PlayError(f"no audio: the speaker is not available ({exc})") from None
+        return None
+    if audio:
+        try:
+            return Speaker(enabled=True, require=True)
+        except RuntimeError as exc:
+            raise PlayError(str(exc)) from None
+    speaker = Speaker(enabled=True)
+    return speaker if getattr(speaker, "available", False) else None
+
+
+def _with_playback(module: Callable[[TensorDictBase], TensorDictBase], playback: str) -> Callable:
+    """A rule-based policy of the 21-action env (whose rules speak at normal speed) speaking at ``playback``."""
+    index = PLAYBACK.index(playback)
+
+    def policy(td: TensorDictBase) -> TensorDictBase:
+        td = module(td)
+        td["action"] = td["action"] // 3 * 3 + index
+        return td
+
+    return policy
+
+
+class PlaySession:
+    """One drive of ``route`` in ``town`` by a person (or the scripted bot) with prompts from ``policy``.
+
+    ``user`` (name, mapping or file, with ``context`` overrides) is who the oracle times its prompts for, and the
+    car's vehicle; ``controls`` default to :class:`~pernav.play.controls.ScriptedControls`. ``window``: a pygame
+    window (paced to real time); ``draw``: draw off screen too (a screenshot, a timing); ``realtime`` defaults to
+    ``window``. ``screenshot``: a PNG of the window saved at ``screenshot_at`` seconds of the drive (default: one
+    second after the first prompt is played, or at the end).
+
+    >>> session = PlaySession("Town1", 0, policy="oracle", user="user3", n_traffic=2)
+    >>> result = session.run(max_steps=3)
+    >>> result.trajectory.shape, result.metrics["interrupted"]
+    (torch.Size([3]), False)
+    """
+
+    def __init__(self, town: str = "Town1", route: int = 0, user: Any = "user1", context: dict | None = None,
+                 policy: str | Callable[[TensorDictBase], TensorDictBase] = "explore", controls: Any = None,
+                 seed: int = 0, n_traffic: int = 8, playback: str = "normal", window: bool = False, draw: bool = False,
+                 speaker: Any = None, realtime: bool | None = None, fps: int = 30, K: int = 5,
+                 size: tuple[int, int] = (960, 720), screenshot: str | Path | None = None,
+                 screenshot_at: float | None = None) -> None:
+        from pernav.env.torchrl_env import explore_module, oracle_module
+        from pernav.trainer.collect import history_env
+
+        if town not in TOWN_NAMES:
+            raise TownError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
+        n_routes = len(get_town(town).routes)
+        if isinstance(route, bool) or not isinstance(route, (int, np.integer)) or not 0 <= route < n_routes:
+            raise TownError(f"route index {route!r} out of range [0, {n_routes - 1}] for {town}")
+        if isinstance(policy, str) and policy not in POLICIES:
+            raise PlayError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)} (or pass a callable)")
+        if playback not in PLAYBACK:
+            raise PlayError(f"unknown playback {playback!r}; choose one of {', '.join(PLAYBACK)}")
+        if seed < 0:
+            raise PlayError(f"seed must be >= 0, got {seed}")
+        if fps < 1:
+            raise PlayError(f"fps must be >= 1, got {fps}")
+        profile, ctx = load_user(user)
+        ctx_dict = {**(ctx.to_dict() if ctx else {}), **(context or {})}
+        unknown = sorted(set(ctx_dict) - set(CONTEXT_CHOICES))
+        if unknown:
+            raise ProfileError(f"unknown context field {unknown[0]!r}; allowed: {', '.join(CONTEXT_CHOICES)}")
+        self.town, self.route, self.seed, self.playback = town, int(route), int(seed), playback
+        self.user = user if isinstance(user, str) else "custom"
+        config = {"n_traffic": int(n_traffic), "adaptive_speed": playback != "normal"}
+        options = {"route": int(route), "user": profile, "context": ctx_dict}
+        self.env = history_env(town, options, config=config, seed=int(seed), K=K)
+        self.nav = self.env.base_env._env  # the NavigationEnv inside the TorchRL wrapper
+        if isinstance(policy, str):
+            module = explore_module() if policy == "explore" else oracle_module()
+            self.policy = _with_playback(module, playback) if playback != "normal" else module
+            self.policy_name = policy
+        else:
+            self.policy, self.policy_name = policy, getattr(policy, "__name__", type(policy).__name__)
+        self.controls = controls if controls is not None else ScriptedControls()
+        self.speaker = speaker
+        self.realtime = window if realtime is None else bool(realtime)
+        self.screenshot_path = None if screenshot is None else Path(screenshot)
+        self.screenshot_at = screenshot_at
+        self.view = None
+        if window or draw or screenshot is not None:
+            from pernav.play.view import PlayView
+
+            self.view = PlayView(self.nav.town, size=size, window=window)
+        frequency = int(self.nav.config["frequency"])
+        self.dt = 1.0 / frequency
+        self.draws_per_frame = max(1, math.ceil(fps / frequency))
+        self.prompt: tuple[int, str, float] | None = None  # (instruction, playback, world time) last played
+        self.distance = math.inf  # m to the next decision manoeuvre (updated every frame)
+        self.next_manoeuvre = "none"
+        self.frame_ms: list[float] = []
+        self._snap: dict[int, tuple[np.ndarray, float]] = {}
+        self.frames = 0
+        self.shot: Path | None = None
+
+    # ----- what the window shows ---------------------------------------------------------------------
+    def interpolated(self, alpha: float) -> dict[int, tuple[np.ndarray, float]]:
+        """Every car's (position, heading) ``alpha`` of the way from its last frame to this one."""
+        out = {}
+        for car in self.nav.world.cars:
+            last = self._snap.get(id(car))
+            if last is None or alpha >= 1.0:
+                out[id(car)] = (car.position, car.heading)
+                continue
+            pos, heading = last
+            turn = (car.heading - heading + np.pi) % (2 * np.pi) - np.pi
+            out[id(car)] = (pos + alpha * (car.position - pos), heading + alpha * turn)
+        return out
+
+    def prompt_text(self) -> str | None:
+        """The prompt on screen with the distance to its manoeuvre, while it is fresh (else None)."""
+        if self.prompt is None:
+            return None
+        instruction, playback, at = self.prompt
+        if self.nav.world.time - at > audio_duration(instruction, playback) + 5.0:
+            return None
+        far = f"  -  {self.distance:.0f} m" if math.isfinite(self.distance) else ""
+        return f"{ACTION_NAMES[instruction]}{far}"
+
+    def _update_distance(self) -> None:
+        nav = self.nav
+        progress, _ = nav.route.project(nav.world.ego.position, hint=nav.progress)
+        ahead = nav.route.upcoming(progress)
+        self.distance = float(ahead[0].s - progress) if ahead else math.inf
+        self.next_manoeuvre = ahead[0].kind if ahead else "none"
+
+    def _snapshot(self) -> None:
+        self._snap = {id(c): (c.position.copy(), float(c.heading)) for c in self.nav.world.cars}
+
+    # ----- the env's callbacks ---------------------------------------------------------------------
+    def _on_prompt(self, instruction: int, playback: str) -> None:
+        self.prompt = (instruction, playback, self.nav.world.time)
+        if self.speaker is not None:
+            self.speaker.say(instruction, playback)
+
+    def _sleep_until(self, due: float) -> None:
+        wait = due - time.perf_counter()
+        if wait > 0:
+            time.sleep(wait)
+
+    def _on_frame(self) -> None:
+        start = time.perf_counter()
+        compute = start - self._t_out  # the world frame (at a second's start also the policy, the env's step)
+        self.frames += 1
+        self._update_distance()
+        drawing = 0.0
+        if self.view is not None:
+            k = self.draws_per_frame
+            for j in range(1, k + 1):
+                due = self.t0 + (self.frames - 1 + j / k) * self.dt
+                if self.realtime and j < k and time.perf_counter() > due:
+                    continue  # late already: skip this in-between picture
+                t = time.perf_counter()
+                self.view.draw(self, j / k)
+                self.view.present()
+                drawing += time.perf_counter() - t
+                if self.realtime:
+                    self._sleep_until(due)
+            self._maybe_screenshot()
+        elif self.realtime:
+            self._sleep_until(self.t0 + self.frames * self.dt)
+        self.frame_ms.append(1000.0 * (compute + drawing))
+        self.controls.poll()
+        if self.controls.quit_requested:
+            raise PlayQuit
+        self._snapshot()
+        now = time.perf_counter()
+        if self.realtime and now > self.t0 + self.frames * self.dt + 0.25:  # a stall: go on from here
+            self.t0 = now - self.frames * self.dt
+        self._t_out = time.perf_counter()
+
+    def _maybe_screenshot(self) -> None:
+        if self.screenshot_path is None or self.shot is not None:
+            return
+        world_time = self.nav.world.time
+        if self.screenshot_at is not None:
+            due = world_time >= self.screenshot_at
+        else:
+            due = self.prompt is not None and world_time >= self.prompt[2] + 1.0
+        if due:
+            self.shot = self.view.screenshot(self.screenshot_path)
+
+    def screenshot(self, path: str | Path) -> Path:
+        """Draw the world as it is now and save the picture as a PNG (the window's surface)."""
+        if self.view is None:
+            from pernav.play.view import PlayView
+
+            self.view = PlayView(self.nav.town, window=False)
+        self.view.draw(self, 1.0)
+        return self.view.screenshot(path)
+
+    # ----- the drive --------------------------------------------------------------------------------
+    def run(self, max_steps: int = MAX_STEPS) -> PlayResult:
+        """Drive until arrival, the time limit, ``max_steps`` decisions or the person quits."""
+        from pernav.trainer.collect import episode_metrics
+
+        td = self.env.reset()
+        nav = self.nav
+        nav.world.ego.external = self.controls
+        nav.world.ego.color = (50, 200, 0)  # drawn green among the blue traffic
+        nav.on_prompt, nav.on_frame = self._on_prompt, self._on_frame
+        self._snapshot()
+        self._update_distance()
+        self.t0 = self._t_out = time.perf_counter()
+        if self.view is not None:
+            self.view.draw(self, 1.0)
+            self.view.present()
+        steps: list[TensorDictBase] = []
+        interrupted = False
+        try:
+            with torch.no_grad():
+                for _ in range(max_steps):
+                    td.update(self.policy(td))
+                    td = self.env.step(td)
+                    nxt = self.env._step_mdp(td)  # what env.rollout does between two steps
+                    steps.append(td.copy())
+                    if bool(td["next", "done"].any()):
+                        break
+                    td = nxt
+        except PlayQuit:
+            interrupted = True
+        finally:
+            nav.on_prompt = nav.on_frame = None
+        if self.view is not None and self.screenshot_path is not None and self.shot is None:
+            self.shot = self.screenshot(self.screenshot_path)  # the drive ended before the moment asked for
+        trajectory = torch.stack(steps).contiguous() if steps else None
+        metrics: dict[str, Any] = {}
+        if trajectory is not None:
+            metrics = episode_metrics(trajectory)
+            last = trajectory[-1]["next"]
+            metrics.update(reroutes=int(last["reroutes"]), time=float(last["time"]))
+        else:
+            metrics.update(completed=False, steps=0)
+        metrics.update(interrupted=interrupted, town=self.town, route=self.route, user=self.user,
+                       policy=self.policy_name, seed=self.seed, playback=self.playback,
+                       controls=type(self.controls).__name__, frequency=int(nav.config["frequency"]))
+        return PlayResult(trajectory, metrics, list(self.frame_ms))
+
+    def close(self) -> None:
+        """Close the window and the speaker."""
+        if self.view is not None:
+            self.view.close()
+        if self.speaker is not None and hasattr(self.speaker, "close"):
+            self.speaker.close()
