@@ -347,11 +347,39 @@ def bench_train(quick: bool = False, inner_windows: int | None = None) -> dict[s
     }
 
 
-BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train}
+def bench_play(quick: bool = False) -> dict[str, Any]:
+    """Frame time of ``pernav play``'s loop (:class:`~pernav.play.loop.PlaySession`) with the default traffic (8
+    cars), Town3 route 1 (a roundabout), the scripted bot at the wheel, drawn off screen (``SDL_VIDEODRIVER=dummy``
+    unless a display driver is set) as fast as it goes (not paced to the clock). A world frame's time is its
+    compute (the world, and at each second's start the policy and the env's step) plus its pictures (30 per second
+    over 10 world frames: 3 each); at 10 world frames per second a frame must take under 100 ms for real time,
+    and a picture under 33 ms for 30 pictures per second. The same drive without drawing is the reference."""
+    import os
+
+    os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+    from pernav.play.loop import PlaySession
+
+    steps = 15 if quick else 60
+    drawn = PlaySession("Town3", 1, n_traffic=8, draw=True, realtime=False).run(max_steps=steps)
+    bare = PlaySession("Town3", 1, n_traffic=8, draw=False, realtime=False).run(max_steps=steps)
+    d, b = drawn.frame_stats(), bare.frame_stats()
+    return {
+        "world_frames": d["frames"],
+        "pictures_per_world_frame": 3,
+        "frame_ms_median": d["median_ms"],
+        "frame_ms_p95": d["p95_ms"],
+        "frame_without_drawing_ms_median": b["median_ms"],
+        "frame_without_drawing_ms_p95": b["p95_ms"],
+        "drawn_vs_bare_median_ratio": round(d["median_ms"] / max(b["median_ms"], 1e-9), 2),
+        "target": "frame_ms_p95 <= 50 (issue #33)",
+    }
+
+
+BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, "play": bench_play}
 
 
 def run_benchmarks(which: str = "all", quick: bool = False) -> dict[str, dict[str, Any]]:
-    """Run one benchmark (``sim``, ``planner``, ``train``) or ``all``; returns {name: figures}."""
+    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``) or ``all``; returns {name: figures}."""
     if which != "all" and which not in BENCHMARKS:
         raise ValueError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)} or all")
     names = list(BENCHMARKS) if which == "all" else [which]

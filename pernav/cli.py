@@ -26,7 +26,7 @@ from pernav.world.layout import PLAYBACK
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
-BENCH_CHOICES = ("sim", "planner", "train")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
+BENCH_CHOICES = ("sim", "planner", "train", "play")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
 MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
 
 

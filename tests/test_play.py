@@ -230,3 +230,13 @@ def test_nothing_below_play_imports_it():
         if "play" not in path.relative_to(root).parts and path.name != "cli.py":
             text = path.read_text()
             assert "from pernav.play" not in text and "import pernav.play" not in text, path
+
+
+def test_bench_play_reports_frame_times(monkeypatch):
+    """``pernav bench play`` measures the loop (no timing is asserted here: the target is checked by the bench)."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    from pernav.bench import bench_play
+
+    out = bench_play(quick=True)
+    assert out["world_frames"] > 100 and 0 < out["frame_ms_median"] <= out["frame_ms_p95"]
+    assert 0 < out["frame_without_drawing_ms_median"] and out["drawn_vs_bare_median_ratio"] > 1
