@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from pernav.study.schedule import Entry, paper_schedule
+from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
 
@@ -97,6 +97,7 @@ class StudyConfig:
             phases = [e.phase for e in self.entries_for(town)]
             if "offline" not in phases or "online" not in phases:
                 raise PresetError(f"town {town}: the schedule gives it no offline or no online entry")
+        check_recorded(self.schedule, self.towns, self.train.K)  # recorded drives: their towns and K
 
 
 def _select(labels: list[str]) -> list[Entry]:

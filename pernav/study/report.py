@@ -14,7 +14,8 @@ COLORS = {"explore": "#7f7f7f", "sysid": "#1f77b4", "adapt": "#d62728", "adapt_s
 
 
 def _online(results: dict[str, Any], town: str) -> list[dict[str, Any]]:
-    return [it for it in results["iterations"] if it["phase"] == "online" and town in it["towns"]]
+    # a round of recorded drives has no episodes (docs/study.md, "Recorded drives in a schedule")
+    return [it for it in results["iterations"] if it["phase"] == "online" and it["towns"].get(town)]
 
 
 def running_mean(values: list[float]) -> list[float]:

@@ -12,6 +12,11 @@ into the learner's own ``D_t``; then FTML meta updates (``adapt``, ``adapt_speed
 aggregated data (``sysid``). After the last round, ``hindsight`` is trained with Eq. 3 on all of adapt's
 rounds from the same warm start and evaluated per round like ``adapt``.
 
+An entry with recorded drives (a person's, ``pernav play --record``) drives nothing: its drives of the town go
+into every learner's round data as simulated drives do (the first is the round's tau). Offline, that is all;
+online, the round is a round of data: adapt's losses on it are recorded and the learners update, but no method
+is evaluated (nobody can re-drive the person for every method) and no rollouts are collected.
+
 A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically
 (a new folder, then a manifest with checksums replaced in one ``os.replace``).
 
@@ -40,6 +45,7 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
+from pernav.play.record import load_drive
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
@@ -276,24 +282,23 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
         t0 = time.perf_counter()
         rng = random.Random(derive_seed(cfg.seed, town, entry.label))
         record: dict[str, Any] = {"label": entry.label, "phase": entry.phase, "methods": {}}
-        if entry.phase == "offline":
-            episodes = []
+        if entry.drives:  # recorded drives: the round's data, nothing simulated (docs/study.md)
             with _Timer(profile, "collection_s"):
-                for k in range(cfg.offline_trajectories):
-                    route = rng.randrange(10)
-                    seed = derive_seed(cfg.seed, town, entry.label, "offline", k)
-                    policy = _tau_policy(cfg, seed) if k == 0 else _collector(cfg, seed)  # k = 0 is tau
-                    traj = episode(cfg, town, entry, route, seed, policy)
-                    if not isinstance(policy, RetimedExplore):  # the round's explore figures: explore's episodes
-                        episodes.append({"route": route, **episode_metrics(traj)})
-                    for learner in learners.values():
-                        learner.add(index, traj, tau=(k == 0))
-            if episodes:  # none when every offline drive is re-timed (collect and tau "retimed")
-                record["methods"]["explore"] = _summarize(episodes)
+                _add_recorded(entry, town, index, learners)
+        if entry.phase == "offline":
+            if not entry.drives:
+                _collect_offline(cfg, town, entry, index, rng, learners, record, profile)
             if index + 1 == first_online:
                 with _Timer(profile, "training_s"):
                     _warm_start(cfg, learners)
                 state["warm"] = copy.deepcopy({k: v.state() for k, v in learners.items()})  # not live tensors
+        elif entry.drives:  # a person cannot drive every method's episodes: a round of data, losses and updates
+            if "adapt" in learners:
+                seed = derive_seed(cfg.seed, town, entry.label, "adapt", "personal")
+                _round_losses(cfg, state, entry, index, learners["adapt"], learners["adapt"].adapted(index, cfg, seed))
+            with _Timer(profile, "training_s"):
+                for learner in learners.values():
+                    learner.trainer.train(cfg.train.updates, meta=learner.meta)
         else:
             tau_route = rng.randrange(10)
             with _Timer(profile, "collection_s"):
@@ -342,14 +347,7 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                 learner.planner.planning_s for learner in learners.values()) - planning_before
             # the online loss of adapt before the update (for the model-loss regret)
             if "adapt" in learners:
-                trainer = learners["adapt"].trainer
-                # the parameters adapt planned with (U on tau, or the personal updates); the model is unchanged
-                state["online_losses"][entry.label] = trainer.round_loss(index, True, adapted["adapt"])
-                state["unadapted_losses"][entry.label] = trainer.round_loss(index, adapted=False)
-                if not cfg.train.personal_updates and cfg.train.backtrack is not None:  # the paper's fixed step too
-                    fixed = trainer.parameters(learners["adapt"].buffers.tau(index), adapted=True,
-                                               alpha=cfg.train.alpha, fixed_step=True)
-                    state.setdefault("fixed_step_losses", {})[entry.label] = trainer.round_loss(index, True, fixed)
+                _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
             with _Timer(profile, "training_s"):
                 for learner in learners.values():
                     learner.trainer.train(cfg.train.updates, meta=learner.meta)
@@ -374,6 +372,47 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             "diagnostics": diagnostics,
             "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
             "profile": {k: round(v, 2) for k, v in state["profile"].items()}}
+
+
+def _collect_offline(cfg: StudyConfig, town: str, entry: Entry, index: int, rng: random.Random,
+                     learners: dict[str, Learner], record: dict[str, Any], profile: dict[str, float]) -> None:
+    """An offline round's simulated drives: ``offline_trajectories`` routes of the entry's driver (the first is
+    the round's tau) into every learner's data; explore's episodes are the round's ``explore`` figures."""
+    episodes = []
+    with _Timer(profile, "collection_s"):
+        for k in range(cfg.offline_trajectories):
+            route = rng.randrange(10)
+            seed = derive_seed(cfg.seed, town, entry.label, "offline", k)
+            policy = _tau_policy(cfg, seed) if k == 0 else _collector(cfg, seed)  # k = 0 is tau
+            traj = episode(cfg, town, entry, route, seed, policy)
+            if not isinstance(policy, RetimedExplore):  # the round's explore figures: explore's episodes
+                episodes.append({"route": route, **episode_metrics(traj)})
+            for learner in learners.values():
+                learner.add(index, traj, tau=(k == 0))
+    if episodes:  # none when every offline drive is re-timed (collect and tau "retimed")
+        record["methods"]["explore"] = _summarize(episodes)
+
+
+def _add_recorded(entry: Entry, town: str, index: int, learners: dict[str, Learner]) -> None:
+    """The entry's recorded drives of ``town`` into every learner's round data exactly as simulated drives go
+    there (the same keys and ``traj`` ids; re-encoded for a 21-action learner); the first is the round's tau."""
+    for k, path in enumerate(entry.drives_in(town)):
+        trajectory = load_drive(path)
+        for learner in learners.values():
+            learner.add(index, trajectory, tau=(k == 0))
+
+
+def _round_losses(cfg: StudyConfig, state: dict[str, Any], entry: Entry, index: int, learner: Learner,
+                  adapted: Any) -> None:
+    """adapt's held-out loss on the round's data before the round's update, with the parameters it plans with
+    (``adapted``: U on tau, or the personal updates; the model is unchanged), without adaptation and, where U
+    backtracks, with the paper's fixed step (the model-loss regret and the adaptation check)."""
+    trainer = learner.trainer
+    state["online_losses"][entry.label] = trainer.round_loss(index, True, adapted)
+    state["unadapted_losses"][entry.label] = trainer.round_loss(index, adapted=False)
+    if not cfg.train.personal_updates and cfg.train.backtrack is not None:  # the paper's fixed step too
+        fixed = trainer.parameters(learner.buffers.tau(index), adapted=True, alpha=cfg.train.alpha, fixed_step=True)
+        state.setdefault("fixed_step_losses", {})[entry.label] = trainer.round_loss(index, True, fixed)
 
 
 def _calibrate(cfg: StudyConfig, town: str, entry: Entry, index: int, learners: dict[str, Learner],
@@ -425,13 +464,14 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                        "mpc", 7, hind.spec(), params[index], policy_name="hindsight",
                        planner_options={"rescue": None} if evidence else None)
-            for index, entry in online for route in routes]
+            for index, entry in online if not entry.drives for route in routes]  # recorded rounds: no episodes
     with _Timer(state["profile"], "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
     _strip_timing(metrics, state["profile"], "hindsight")
     for index, entry in online:
-        out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
-                                                      if j.entry.label == entry.label])
+        if not entry.drives:
+            out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
+                                                          if j.entry.label == entry.label])
         out["losses"][entry.label] = hind.trainer.round_loss(index, True, params[index] if cfg.train.personal_updates
                                                              else None)
     return out

@@ -3,7 +3,10 @@
 An entry: ``label``, ``phase`` (offline | online), ``driver`` (a named user ``user1``..``user7`` or a
 mapping of :class:`~pernav.world.drivers.DriverProfile` fields, optionally with ``user`` as a base),
 ``vehicle``, ``camera``, ``visual``, ``equipment`` and optionally ``towns`` (the towns that run it; all
-when absent). Any mistake is a :class:`ScheduleError` naming the entry and the field.
+when absent). Instead of ``driver`` (and the context fields), ``drives``: recorded drives (``pernav play
+--record``; files or globs, relative to the schedule file) that are the round's data, the first of a town its
+tau (docs/study.md, "Recorded drives in a schedule"). Any mistake is a :class:`ScheduleError` naming the entry
+and the field (and the file).
 
 Example:
     >>> entries = paper_schedule()
@@ -17,6 +20,8 @@ Example:
 
 from __future__ import annotations
 
+import glob
+import hashlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -25,9 +30,13 @@ from pernav.world.drivers import CONTEXT_CHOICES, NAMED_USERS, Context, DriverPr
 from pernav.world.files import DataFileError, is_file, read_data_file
 from pernav.world.towns import TOWN_NAMES
 
-__all__ = ["Entry", "ScheduleError", "load_schedule", "paper_schedule", "parse_schedule"]
+__all__ = ["Entry", "ScheduleError", "check_recorded", "load_schedule", "paper_schedule", "parse_schedule"]
 
-FIELDS = ("label", "phase", "driver", "vehicle", "camera", "visual", "equipment", "towns")
+FIELDS = ("label", "phase", "driver", "vehicle", "camera", "visual", "equipment", "towns", "drives")
+# what a recorded drive must hold: the transitions the learners store (RoundBuffers.KEYS) and the route ahead
+# (the model's road inputs, as in every simulated drive)
+DRIVE_KEYS = ("observation", "action", "history", ("next", "observation"), "route_ahead")
+N_INSTRUCTIONS = 7  # the study's drives are in the 7-instruction space (adapt_speed re-encodes them)
 
 
 class ScheduleError(ValueError):
@@ -46,8 +55,11 @@ class Entry:
     visual: str = "normal"
     equipment: str = "keyboard"
     towns: tuple[str, ...] | None = None
+    drives: tuple[str, ...] | None = None  # recorded drive files (resolved), in order; then ``driver`` is None
 
     def profile(self) -> DriverProfile:
+        if self.driver is None:
+            raise ScheduleError(f"schedule entry {self.label!r} is driven by recorded drives, not a simulated driver")
         if isinstance(self.driver, str):
             return named_user(self.driver)
         spec = dict(self.driver)
@@ -62,18 +74,105 @@ class Entry:
     def runs_in(self, town: str) -> bool:
         return self.towns is None or town in self.towns
 
+    def drives_in(self, town: str) -> list[str]:
+        """The entry's recorded drives of ``town``, in the schedule's order (the first is the round's tau)."""
+        return [p for p in self.drives or () if _drive_town(p) == town]
+
     def user(self) -> dict[str, Any]:
-        """The full resolved profile and context (what results.json records)."""
+        """The full resolved profile and context (what results.json records); for recorded drives, their files."""
+        if self.drives:
+            return {"name": "recorded", "drives": [Path(p).name for p in self.drives], "profile": None, "context": None}
         name = self.driver if isinstance(self.driver, str) else dict(self.driver).get("user", "custom")
         return {"name": name, "profile": self.profile().to_dict(), "context": self.context().to_dict()}
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
         out["towns"] = list(self.towns) if self.towns is not None else None
+        del out["drives"]  # absent without drives: a study's fingerprint stays what it was before the field
+        if self.drives:  # the files' contents too: a resumed study must learn from the same drives
+            out["drives"] = [{"file": p, "sha256": _sha256(p)} for p in self.drives]
         return out
 
 
-def _entry(i: int, raw: Any) -> Entry:
+def _sha256(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _drive_town(path: str) -> Any:
+    from pernav.play.record import read_metrics
+
+    return read_metrics(path).get("town")
+
+
+def _load(where: str, path: str) -> Any:
+    """A recorded drive's ``[T]`` trajectory, or a :class:`ScheduleError` naming the entry and the file."""
+    from pernav.play.record import load_drive
+
+    try:
+        return load_drive(path)
+    except Exception as exc:  # noqa: BLE001 - torch.load fails in many ways on a file that is not a drive
+        raise ScheduleError(f"{where}: field 'drives': {path!r} is not a pernav drive ({' '.join(str(exc).split())})"
+                            ) from None
+
+
+def _check_drive(where: str, path: str) -> None:
+    """What a drive must be whatever the study: loadable, the study's keys and state size, the 7 instructions,
+    a town in its metrics file (the K of its history is checked against the study in :func:`check_recorded`)."""
+    from pernav.model.dynamics import STATE_DIM
+
+    td = _load(where, path)
+    bad = f"{where}: field 'drives': drive {path!r}"
+    keys = set(td.keys(include_nested=True))
+    missing = next((k for k in DRIVE_KEYS if k not in keys), None)
+    if missing is not None:
+        raise ScheduleError(f"{bad} has no {missing!r} (not recorded in the study's format)")
+    if td.ndim != 1 or td.shape[0] == 0:
+        raise ScheduleError(f"{bad} is not a non-empty [T] trajectory ({tuple(td.shape)})")
+    width = STATE_DIM + N_INSTRUCTIONS
+    if td["observation"].shape[-1] != STATE_DIM or td["history"].ndim != 3 or td["history"].shape[-1] != width:
+        raise ScheduleError(f"{bad} has observations of {tuple(td['observation'].shape[1:])} and a history of "
+                            f"{tuple(td['history'].shape[1:])}; the study's are ({STATE_DIM},) and (K, {width})")
+    action = td["action"]
+    if action.is_floating_point() or int(action.min()) < 0 or int(action.max()) >= N_INSTRUCTIONS:
+        raise ScheduleError(f"{bad} has actions outside the study's {N_INSTRUCTIONS} instructions (0..{N_INSTRUCTIONS - 1}"
+                            "; a drive with another playback than normal has 21)")
+    if "action_mask" in keys and td["action_mask"].shape[-1] != N_INSTRUCTIONS:
+        raise ScheduleError(f"{bad} has an action mask of {td['action_mask'].shape[-1]} actions, the study "
+                            f"{N_INSTRUCTIONS}")
+    try:
+        town = _drive_town(path)
+    except (OSError, ValueError) as exc:
+        raise ScheduleError(f"{bad} has no readable metrics file beside it ({exc})") from None
+    if town not in TOWN_NAMES:
+        raise ScheduleError(f"{bad}: its metrics name no known town ({town!r})")
+
+
+def _drives(where: str, raw: Any, base: Path) -> tuple[str, ...]:
+    """The files of a ``drives`` field: each item a file or a glob (sorted matches), relative to ``base``."""
+    if not isinstance(raw, list) or not raw or not all(isinstance(x, str) and x for x in raw):
+        raise ScheduleError(f"{where}: field 'drives' must be a non-empty list of drive files (.pt) or glob patterns")
+    files: list[str] = []
+    for item in raw:
+        path = Path(item).expanduser()
+        path = path if path.is_absolute() else base / path
+        if glob.has_magic(item):
+            matches = sorted(m for m in glob.glob(str(path), recursive=True) if Path(m).is_file())
+            if not matches:
+                raise ScheduleError(f"{where}: field 'drives': no file matches {item!r} (in {str(base)!r})")
+        elif not path.is_file():
+            raise ScheduleError(f"{where}: field 'drives': drive file {str(path)!r} does not exist")
+        else:
+            matches = [str(path)]
+        for m in matches:
+            resolved = str(Path(m).resolve())
+            if resolved not in files:  # a file named twice (a file and a glob) counts once
+                files.append(resolved)
+    for f in files:
+        _check_drive(where, f)
+    return tuple(files)
+
+
+def _entry(i: int, raw: Any, base: Path) -> Entry:
     where = f"schedule entry {i}"
     if not isinstance(raw, dict):
         raise ScheduleError(f"{where}: must be a mapping with {', '.join(FIELDS)}, not {type(raw).__name__}")
@@ -82,15 +181,23 @@ def _entry(i: int, raw: Any) -> Entry:
     unknown = sorted(set(raw) - set(FIELDS), key=str)  # keys of any type (YAML: 1, null)
     if unknown:
         raise ScheduleError(f"{where}: unknown field {unknown[0]!r}; allowed: {', '.join(FIELDS)}")
-    for key in ("label", "phase", "driver"):
+    recorded = "drives" in raw
+    if recorded:  # the drives' person drove in the context of the drives: a simulated driver or context is not used
+        other = next((k for k in ("driver", *CONTEXT_CHOICES) if k in raw), None)
+        if other is not None:
+            raise ScheduleError(f"{where}: field {other!r}: an entry with 'drives' is driven by the person who recorded "
+                                "them; give 'drives' or a simulated 'driver' (with its context), not both")
+    for key in ("label", "phase") if recorded else ("label", "phase", "driver"):
         if key not in raw:
             raise ScheduleError(f"{where}: field {key!r} is missing")
     if not isinstance(label, str) or not label:
         raise ScheduleError(f"{where}: field 'label' must be a non-empty string")
     if raw["phase"] not in ("offline", "online"):
         raise ScheduleError(f"{where}: field 'phase': {raw['phase']!r} is not offline or online")
-    driver = raw["driver"]
-    if isinstance(driver, str):
+    driver = raw.get("driver")
+    if recorded:
+        pass
+    elif isinstance(driver, str):
         if driver not in NAMED_USERS:
             raise ScheduleError(f"{where}: field 'driver': unknown user {driver!r}; choose one of "
                                 f"{', '.join(NAMED_USERS)} or a mapping of profile fields")
@@ -107,22 +214,26 @@ def _entry(i: int, raw: Any) -> Entry:
         if bad:
             raise ScheduleError(f"{where}: field 'towns': unknown town {bad[0]!r}; choose from {', '.join(TOWN_NAMES)}")
         towns = tuple(towns)
-    entry = Entry(label=label, phase=raw["phase"], driver=driver, towns=towns,
+    drives = _drives(where, raw["drives"], base) if recorded else None
+    entry = Entry(label=label, phase=raw["phase"], driver=driver, towns=towns, drives=drives,
                   **{k: raw[k] for k in CONTEXT_CHOICES if k in raw})
-    try:
-        entry.profile()
-    except (ProfileError, TypeError, ValueError) as exc:
-        raise ScheduleError(f"{where}: field 'driver': {exc}") from None
+    if not recorded:
+        try:
+            entry.profile()
+        except (ProfileError, TypeError, ValueError) as exc:
+            raise ScheduleError(f"{where}: field 'driver': {exc}") from None
     return entry
 
 
-def parse_schedule(raw: Any) -> list[Entry]:
-    """Validate a schedule (a list of entry mappings, or ``{"schedule": [...]}``)."""
+def parse_schedule(raw: Any, base: str | Path | None = None) -> list[Entry]:
+    """Validate a schedule (a list of entry mappings, or ``{"schedule": [...]}``); ``base``: the folder that
+    relative ``drives`` are in (the schedule file's; the working directory when None)."""
     if isinstance(raw, dict) and set(raw) == {"schedule"}:
         raw = raw["schedule"]
     if not isinstance(raw, list) or not raw:
         raise ScheduleError("a schedule must be a non-empty list of entries")
-    entries = [_entry(i, e) for i, e in enumerate(raw)]
+    base = Path.cwd() if base is None else Path(base)
+    entries = [_entry(i, e, base) for i, e in enumerate(raw)]
     labels = [e.label for e in entries]
     dup = next((x for x in labels if labels.count(x) > 1), None)
     if dup is not None:
@@ -148,7 +259,35 @@ def load_schedule(path: str | Path) -> list[Entry]:
         raw = read_data_file(path)
     except DataFileError as exc:
         raise ScheduleError(f"cannot parse schedule file {str(path)!r}: {exc}") from None
-    return parse_schedule(raw)
+    return parse_schedule(raw, base=path.parent)
+
+
+def check_recorded(entries: list[Entry], towns: list[str], K: int) -> None:
+    """Check an entry's recorded drives against the study that runs them: each drive of a town the entry runs in
+    (``towns`` of the entry, else the study's), every such town with at least one drive (its tau), and a
+    history of the study's length ``K``. A :class:`ScheduleError` names the entry and the file.
+
+    >>> check_recorded(paper_schedule(), ["Town1"], K=5)  # no recorded drives: nothing to check
+    """
+    for i, entry in enumerate(entries):
+        if not entry.drives:
+            continue
+        where = f"schedule entry {i} ({entry.label!r}): field 'drives'"
+        runs = [t for t in towns if entry.runs_in(t)]
+        allowed = list(entry.towns) if entry.towns is not None else towns
+        for path in entry.drives:
+            town = _drive_town(path)
+            if town not in allowed:
+                whose = "the entry's towns" if entry.towns is not None else "the study's towns"
+                raise ScheduleError(f"{where}: drive {path!r} is of {town}, not one of {whose} ({', '.join(allowed)})")
+            k = _load(f"schedule entry {i} ({entry.label!r})", path)["history"].shape[1]
+            if k != K:
+                raise ScheduleError(f"{where}: drive {path!r} has a history of K = {k} steps, the study's model "
+                                    f"reads K = {K} (--train-option K={k} fits it)")
+        empty = next((t for t in runs if not entry.drives_in(t)), None)
+        if empty is not None:
+            raise ScheduleError(f"{where}: the entry runs in {empty} but none of its drives is of {empty}; give it "
+                                f"'towns' with the towns of its drives")
 
 
 def paper_schedule() -> list[Entry]:
