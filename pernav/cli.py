@@ -9,12 +9,15 @@ Example:
     $ pernav study --preset default --out runs/default --workers 2
     $ pernav bench planner --json
     $ pernav play --town Town1 --route 0 --policy oracle --user user3 --record drives/
+    $ pernav play --town Town1 --route 3 --policy study --study runs/default --tau drives/my-tau.pt
+    $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import pickle
 import sys
 from pathlib import Path
 
@@ -79,18 +82,15 @@ def _check_output_file(option: str, value: str, suffix: str) -> None:
         raise UsageError(f"{option} {value!r}: folder {str(path.parent)!r} does not exist")
 
 
-PLAY_POLICIES = ("explore", "oracle")  # pernav.play.loop.POLICIES (not imported here: it loads the env)
+PLAY_POLICIES = ("explore", "oracle", "study")  # pernav.play.loop.POLICIES and a study's adapted model
 PLAY_INPUTS = ("keyboard", "joystick")
 
 
-def _play(args: argparse.Namespace) -> None:
-    """A person drives a route (or the scripted bot, ``--headless``); checks everything before the window opens."""
-    if args.policy not in PLAY_POLICIES:
-        raise UsageError(f"--policy {args.policy!r}: choose one of {', '.join(PLAY_POLICIES)}")
+def _check_drive_args(args: argparse.Namespace) -> dict[str, str]:
+    """The checks `pernav play` and `pernav personalize` share (before any window opens or file is written); the
+    user's context overrides, with the person's equipment when a person drives."""
     if args.input not in PLAY_INPUTS:
         raise UsageError(f"--input {args.input!r}: choose one of {', '.join(PLAY_INPUTS)}")
-    if args.playback not in PLAYBACK:
-        raise UsageError(f"--playback {args.playback!r}: choose one of {', '.join(PLAYBACK)}")
     if args.town not in TOWN_NAMES:
         raise UsageError(f"unknown town {args.town!r}; choose one of {', '.join(TOWN_NAMES)}")
     if args.seed < 0:
@@ -99,17 +99,51 @@ def _play(args: argparse.Namespace) -> None:
         raise UsageError(f"--traffic must be in [0, {MAX_TRAFFIC}], got {args.traffic}")
     if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
         raise UsageError(f"--record {args.record!r} exists and is not a folder")
-    if args.screenshot is not None:
-        _check_output_file("--screenshot", args.screenshot, ".png")
-    from pernav.play.controls import JoystickControls, KeyboardControls
-    from pernav.play.loop import PlaySession, make_speaker
-    from pernav.play.record import save_drive
-
     context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
     if "equipment" not in context and not args.headless:  # the oracle times its prompts for the person's device
         context["equipment"] = "wheel" if args.input == "joystick" else "keyboard"
+    return context
+
+
+def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
+    """``--policy study``: the study's model adapted on ``--tau`` (unadapted without); None for other policies."""
+    if args.policy != "study":
+        if args.study is not None or args.tau is not None:
+            raise UsageError("--study and --tau go with --policy study")
+        return None
+    if args.study is None:
+        raise UsageError("--policy study needs --study DIR (a finished pernav study)")
+    if args.playback != "normal":
+        raise UsageError("--playback applies to explore and oracle; the study's model plans its own prompts")
+    if args.tau is not None and not Path(args.tau).is_file():
+        raise UsageError(f"--tau {args.tau!r}: no such file")
+    from pernav.play.personal import study_policy
+    from pernav.trainer.drives import load_drive
+
+    try:
+        tau = None if args.tau is None else load_drive(args.tau)
+    except (ValueError, RuntimeError, EOFError, pickle.UnpicklingError):
+        raise UsageError(f"--tau {args.tau!r} is not a drive recorded by pernav play") from None
+    return study_policy(args.study, args.town, tau, seed=args.seed)
+
+
+def _play(args: argparse.Namespace) -> None:
+    """A person drives a route (or the scripted bot, ``--headless``); checks everything before the window opens."""
+    if args.policy not in PLAY_POLICIES:
+        raise UsageError(f"--policy {args.policy!r}: choose one of {', '.join(PLAY_POLICIES)}")
+    if args.playback not in PLAYBACK:
+        raise UsageError(f"--playback {args.playback!r}: choose one of {', '.join(PLAYBACK)}")
+    context = _check_drive_args(args)
+    if args.screenshot is not None:
+        _check_output_file("--screenshot", args.screenshot, ".png")
+    study = _study_policy(args)
+    from pernav.play.controls import JoystickControls, KeyboardControls
+    from pernav.play.loop import PlaySession, make_speaker
+    from pernav.trainer.drives import save_drive
+
     speaker = make_speaker(args.audio)  # before any window: a missing device asked for is an error
-    session = PlaySession(args.town, args.route, args.user, context=context, policy=args.policy, seed=args.seed,
+    session = PlaySession(args.town, args.route, args.user, context=context,
+                          policy=args.policy if study is None else study[0], seed=args.seed,
                           n_traffic=args.traffic, playback=args.playback, window=not args.headless,
                           speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at)
     try:
@@ -123,10 +157,11 @@ def _play(args: argparse.Namespace) -> None:
         import time
 
         name = f"{args.town}-r{args.route}-{args.policy}-{time.strftime('%Y%m%d-%H%M%S')}"
-        metrics = {**result.metrics, "frames": result.frame_stats()}
+        metrics = {**result.metrics, "frames": result.frame_stats(), **({} if study is None else {"study": study[1]})}
         saved = save_drive(result.trajectory, metrics, args.record, name)
     if args.json:
         print(json.dumps({**result.metrics, "frames": result.frame_stats(),
+                          **({} if study is None else {"study": study[1]}),
                           "record": None if saved is None else str(saved),
                           "screenshot": None if session.shot is None else str(session.shot)}, indent=2))
         return
@@ -141,6 +176,39 @@ def _play(args: argparse.Namespace) -> None:
         print(f"screenshot: {session.shot}")
 
 
+def _personalize(args: argparse.Namespace) -> None:
+    """Algorithm 1 with the person at the wheel (pernav.play.personal.PersonalSession); checks before any drive."""
+    context = _check_drive_args(args)
+    if args.updates is not None and args.updates < 0:
+        raise UsageError(f"--updates must be >= 0, got {args.updates}")
+    import time
+
+    from pernav.play.controls import JoystickControls, KeyboardControls
+    from pernav.play.loop import make_speaker
+    from pernav.play.personal import PersonalSession, summary_markdown
+
+    record = args.record or str(Path("drives") / f"personal-{args.town}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+    def ready() -> None:  # a person starts each drive when ready (the bot at once)
+        try:
+            input("Press Enter to drive (Esc or Q in the window stops the session) ")
+        except EOFError:
+            pass
+
+    session = PersonalSession(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
+                              record_dir=record, n_traffic=args.traffic, updates=args.updates,
+                              window=not args.headless, announce=print, ready=None if args.headless else ready)
+    if not args.headless:
+        session.controls = JoystickControls() if args.input == "joystick" else KeyboardControls  # made per window
+    session.speaker = make_speaker(args.audio)
+    result = session.run()
+    print(summary_markdown(result.summary))
+    if result.interrupted:
+        print("the session was stopped early; what was driven is kept")
+    if any(d["file"] for d in result.drives):
+        print(f"recorded: {result.folder}")
+
+
 def _bench(args: argparse.Namespace) -> None:
     from pernav.bench import run_benchmarks
 
@@ -152,6 +220,23 @@ def _bench(args: argparse.Namespace) -> None:
             print(f"[{name}]")
             for k, v in fig.items():
                 print(f"  {k}: {v}")
+
+
+def _drive_options(p: argparse.ArgumentParser, record_help: str) -> None:
+    """The options of a person's drive that `pernav play` and `pernav personalize` share."""
+    p.add_argument("--user", default="user1",
+                   help="who the oracle times its prompts for and the scripted bot drives as (and the car): "
+                        "user1..user7 or a profile file")
+    for key, choices in CONTEXT_CHOICES.items():
+        p.add_argument(f"--{key}", choices=choices, help=f"context override ({key})")
+    p.add_argument("--input", default="keyboard", help="keyboard (arrows/WASD; default) or joystick (a wheel)")
+    p.add_argument("--record", metavar="DIR", help=record_help)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--traffic", type=int, default=8, help="traffic cars around the driver (default 8)")
+    p.add_argument("--headless", action="store_true", help="no window: a scripted bot drives (demos, tests)")
+    p.add_argument("--audio", dest="audio", action="store_true", default=None,
+                   help="require sound (an error without an audio device; default: sound if there is a device)")
+    p.add_argument("--no-audio", dest="audio", action="store_false", help="prompts as text only")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -179,25 +264,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("play", help="drive a route yourself (keyboard or wheel) with the navigation's prompts")
     p.add_argument("--town", default="Town1", help=f"one of {', '.join(TOWN_NAMES)} (default Town1)")
     p.add_argument("--route", type=int, default=0, help="route index 0-9 (default 0)")
-    p.add_argument("--user", default="user1",
-                   help="who the oracle times its prompts for (and the car): user1..user7 or a profile file")
-    for key, choices in CONTEXT_CHOICES.items():
-        p.add_argument(f"--{key}", choices=choices, help=f"context override ({key})")
-    p.add_argument("--policy", default="explore", help="explore (default) or oracle")
-    p.add_argument("--input", default="keyboard", help="keyboard (arrows/WASD; default) or joystick (a wheel)")
+    p.add_argument("--policy", default="explore",
+                   help="explore (default), oracle, or study (a finished study's model, adapted on --tau)")
+    p.add_argument("--study", metavar="DIR", help="with --policy study: the finished study (pernav study --out DIR)")
+    p.add_argument("--tau", metavar="FILE", help="with --policy study: a recorded explore drive (.pt) of the person "
+                   "to adapt the model on (default: unadapted)")
     p.add_argument("--playback", default="normal", help="speed of the spoken prompts: slower, normal, faster")
-    p.add_argument("--record", metavar="DIR", help="save the drive (study format) and its metrics in this folder")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--traffic", type=int, default=8, help="traffic cars around the driver (default 8)")
-    p.add_argument("--headless", action="store_true", help="no window: a scripted bot drives (demos, tests)")
-    p.add_argument("--audio", dest="audio", action="store_true", default=None,
-                   help="require sound (an error without an audio device; default: sound if there is a device)")
-    p.add_argument("--no-audio", dest="audio", action="store_false", help="prompts as text only")
+    _drive_options(p, "save the drive (study format) and its metrics in this folder")
     p.add_argument("--screenshot", metavar="PNG", help="save a picture of the window (one second after the first "
                    "prompt, or at --screenshot-at)")
     p.add_argument("--screenshot-at", type=float, metavar="SECONDS", help="time of the drive for --screenshot")
     p.add_argument("--json", action="store_true", help="print the metrics as JSON")
     p.set_defaults(func=_play)
+
+    p = sub.add_parser("personalize", help="the study's model learns you: an explore drive, then each route with the "
+                       "adapted model and with explore in a hidden order, meta updates between rounds")
+    p.add_argument("--study", required=True, metavar="DIR", help="a finished study (pernav study --out DIR)")
+    p.add_argument("--town", required=True, help="a town the study ran")
+    p.add_argument("--routes", required=True, nargs="+", type=int, metavar="R",
+                   help="route indices 0-9: the first for the explore drive the model adapts on, each next one "
+                        "driven twice (at least two routes)")
+    p.add_argument("--updates", type=int, metavar="N", help="meta updates after each round (default: the study's, "
+                   "at most 10)")
+    _drive_options(p, "the session's folder: every drive, summary.json/.md and the personalized model "
+                   "(default drives/personal-TOWN-TIME)")
+    p.set_defaults(func=_personalize)
 
     p = sub.add_parser("bench", help="benchmarks, as ratios measured in one run")
     p.add_argument("which", nargs="?", default="all", choices=[*BENCH_CHOICES, "all"])

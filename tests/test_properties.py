@@ -506,7 +506,8 @@ def test_cli_study_never_overwrites(capsys, kind, resume, precious):
     st.tuples(st.just("bench"), st.just("which"), TEXT.filter(lambda t: t not in ("sim", "planner", "train", "play", "all")
                                                              and not t.startswith("-"))),
     st.tuples(st.just("bench"), st.just("--flag"), st.sampled_from(["--nope", "--quick=1", "--json=yes"])),
-    st.tuples(st.just("command"), st.just(""), TEXT.filter(lambda t: t not in ("towns", "drive", "bench", "study", "play", "personalize")
+    st.tuples(st.just("command"), st.just(""), TEXT.filter(lambda t: t not in ("towns", "drive", "bench", "study", "play",
+                                                                           "personalize")
                                                            and not t.startswith("-"))),
 ))
 def test_cli_other_commands_bad_values_exit_2(capsys, case):

@@ -12,9 +12,9 @@ import torch
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession
-from pernav.play.record import load_drive, read_metrics, save_drive
 from pernav.study import ScheduleError, load_schedule, preset
 from pernav.trainer.buffers import RoundBuffers
+from pernav.trainer.drives import load_drive, read_metrics, save_drive
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -114,7 +114,9 @@ class PlaySession:
     car's vehicle; ``controls`` default to :class:`~pernav.play.controls.ScriptedControls`. ``window``: a pygame
     window (paced to real time); ``draw``: draw off screen too (a screenshot, a timing); ``realtime`` defaults to
     ``window``. ``screenshot``: a PNG of the window saved at ``screenshot_at`` seconds of the drive (default: one
-    second after the first prompt is played, or at the end).
+    second after the first prompt is played, or at the end). ``K`` (history window, default 5) and ``env_config``
+    (entries of the navigation env's config, e.g. a study's planning context lengths) default to the policy's
+    ``K`` and ``env_config`` attributes where it has them (a study's policy: :func:`pernav.play.personal.study_policy`).
 
     >>> session = PlaySession("Town1", 0, policy="oracle", user="user3", n_traffic=2)
     >>> result = session.run(max_steps=3)
@@ -125,9 +127,9 @@ class PlaySession:
     def __init__(self, town: str = "Town1", route: int = 0, user: Any = "user1", context: dict | None = None,
                  policy: str | Callable[[TensorDictBase], TensorDictBase] = "explore", controls: Any = None,
                  seed: int = 0, n_traffic: int = 8, playback: str = "normal", window: bool = False, draw: bool = False,
-                 speaker: Any = None, realtime: bool | None = None, fps: int = 30, K: int = 5,
+                 speaker: Any = None, realtime: bool | None = None, fps: int = 30, K: int | None = None,
                  size: tuple[int, int] = (960, 720), screenshot: str | Path | None = None,
-                 screenshot_at: float | None = None) -> None:
+                 screenshot_at: float | None = None, env_config: Mapping[str, Any] | None = None) -> None:
         from pernav.env.torchrl_env import explore_module, oracle_module
         from pernav.trainer.collect import history_env
 
@@ -151,7 +153,11 @@ class PlaySession:
             raise ProfileError(f"unknown context field {unknown[0]!r}; allowed: {', '.join(CONTEXT_CHOICES)}")
         self.town, self.route, self.seed, self.playback = town, int(route), int(seed), playback
         self.user = user if isinstance(user, str) else "custom"
-        config = {"n_traffic": int(n_traffic), "adaptive_speed": playback != "normal"}
+        # a learned policy plans on the env its study used (history K, planning context lengths): a policy that
+        # carries them (pernav.play.personal.StudyPolicy) gives the defaults, so its drive needs no settings
+        env_config = getattr(policy, "env_config", None) if env_config is None else env_config
+        K = int(getattr(policy, "K", 5)) if K is None else int(K)
+        config = {"n_traffic": int(n_traffic), "adaptive_speed": playback != "normal", **dict(env_config or {})}
         options = {"route": int(route), "user": profile, "context": ctx_dict}
         self.env = history_env(town, options, config=config, seed=int(seed), K=K)
         self.nav = self.env.base_env._env  # the NavigationEnv inside the TorchRL wrapper

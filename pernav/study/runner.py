@@ -45,13 +45,13 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
-from pernav.play.record import load_drive
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
+from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 
 __all__ = ["CheckpointError", "final_models", "run_town"]

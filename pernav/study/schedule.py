@@ -99,14 +99,14 @@ def _sha256(path: str) -> str:
 
 
 def _drive_town(path: str) -> Any:
-    from pernav.play.record import read_metrics
+    from pernav.trainer.drives import read_metrics
 
     return read_metrics(path).get("town")
 
 
 def _load(where: str, path: str) -> Any:
     """A recorded drive's ``[T]`` trajectory, or a :class:`ScheduleError` naming the entry and the file."""
-    from pernav.play.record import load_drive
+    from pernav.trainer.drives import load_drive
 
     try:
         return load_drive(path)

@@ -1,4 +1,5 @@
-"""A played drive on disk: its decision steps in the study's trajectory format, and its metrics beside them.
+"""A recorded drive on disk (a person's, ``pernav play --record``; or any simulated one): its decision steps in the
+study's trajectory format, and its metrics beside them. The study reads them as schedule data.
 
 One drive is two files: ``NAME.pt`` (``torch.save`` of the ``[T]`` trajectory as a plain dict of tensors: the
 keys that :func:`pernav.trainer.collect.drive` produces, observation, action, history, ("next", "observation"),
@@ -7,11 +8,12 @@ to a temporary name and then renamed, so an interrupted drive leaves no half-wri
 
 Example:
     >>> import tempfile
+    >>> from pernav.env.torchrl_env import explore_module
     >>> from pernav.trainer import RoundBuffers
-    >>> from pernav.play.loop import PlaySession
-    >>> result = PlaySession("Town1", 0, n_traffic=2).run(max_steps=5)
+    >>> from pernav.trainer.collect import drive, episode_metrics, history_env
+    >>> trajectory = drive(history_env("Town1", {"route": 0}, config={"n_traffic": 2}), explore_module(), max_steps=5)
     >>> folder = tempfile.mkdtemp()
-    >>> path = save_drive(result.trajectory, result.metrics, folder, "demo")
+    >>> path = save_drive(trajectory, {**episode_metrics(trajectory), "town": "Town1"}, folder, "demo")
     >>> td = load_drive(path)
     >>> td.shape, read_metrics(path)["steps"]
     (torch.Size([5]), 5)

@@ -1,0 +1,484 @@
+"""A study's navigation personalized to a person: the adapted-model policy and Algorithm 1 with a person in the loop.
+
+:func:`study_policy` loads a finished study's meta model ensemble for a town (:func:`pernav.study.runner.final_models`),
+adapts every member to a person on their drive tau exactly as the study adapts to a round's user at test time (``U``:
+one gradient step of ``alpha`` on tau's L-step loss, backtracked and clipped as the study's ``TrainConfig`` says; or
+``personal_updates`` maximum-likelihood updates where the study used them) and returns the study's own planner (its
+``planner`` options, ``retime`` by default) on :class:`~pernav.model.world_model.ImaginedNavigationEnv` planning with
+those parameters: a :class:`StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession` policy, that also
+carries the env settings the study planned on (history ``K``, planning context lengths), which the session takes.
+
+:class:`PersonalSession` is the paper's Algorithm 1 with one person as the stream of users: round 0, the person
+drives ``routes[0]`` with explore (tau); the meta model takes FTML updates on it and adapts to it. Each next route
+is driven twice, once with the adapted MPC policy and once with explore, in an order drawn per route from the
+seed and never shown (each drive is announced as "drive n of N: town, route"); the round's explore drive is its tau.
+After each round: FTML meta updates (the study's ``TrainConfig``, ``updates`` of them) on all the person's rounds so
+far, then re-adaptation on the latest tau. The MPC drive of round ``t`` plans with the parameters adapted on round
+``t - 1``'s tau, so both drives of a round face the same policies whatever their order (the paper adapts on the
+round's own tau, driven first; here that would tell the person which drive comes next).
+
+Every drive is recorded at once (:func:`~pernav.trainer.drives.save_drive`); quitting (Esc/Q, or Ctrl+C) ends the
+session with what was driven, and ``summary.json``/``summary.md`` compare the two policies on the paired routes.
+
+Example (the scripted bot drives; a finished study in ``runs/smoke``):
+    >>> policy, info = study_policy("runs/smoke", "Town1")                             # doctest: +SKIP
+    >>> PlaySession("Town1", 3, policy=policy, n_traffic=2).run().metrics["policy"]   # doctest: +SKIP
+    'study'
+    >>> result = PersonalSession("runs/smoke", "Town1", [0, 3, 5], record_dir="me/").run()  # doctest: +SKIP
+    >>> sorted(result.summary["policies"])                                             # doctest: +SKIP
+    ['adapted', 'explore']
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import random
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+
+from pernav.model.adapt import meta_parameters
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.planner.factory import build_planner, env_planning_config
+from pernav.play.controls import ScriptedControls
+from pernav.play.loop import PlayError, PlayResult, PlaySession
+from pernav.study.config import LEARNERS
+from pernav.study.errors import CheckpointError
+from pernav.trainer.buffers import RoundBuffers
+from pernav.trainer.collect import derive_seed, to_speed_actions
+from pernav.trainer.drives import save_drive
+from pernav.trainer.ensemble import EnsembleTrainer
+from pernav.trainer.ftml import TrainConfig
+from pernav.world.towns import TOWN_NAMES, get_town
+
+__all__ = ["PersonalResult", "PersonalSession", "StudyModel", "StudyPolicy", "adapted_parameters", "load_study",
+           "study_policy", "summary_markdown"]
+
+POLICY_NAMES = ("adapted", "explore")  # the two policies a personalization session compares
+SESSION_FILES = ("summary.json", "summary.md", "model.pt")  # what a session writes beside its drives
+# meta updates after a round by default (fewer if the study took fewer): a few, as the person waits for the next
+# drive; the study's own (50 in the default preset) take minutes on a laptop with second-order updates
+UPDATES = 10
+
+# train options added after studies had been saved, with the value an older study.json without them ran with
+# (pernav.study.study.ADDED_OPTIONS; not imported: it loads the whole study package)
+_TRAIN_ADDED = {"ensemble": 1, "personal_updates": 0, "personal_replay": 0.0, "road": 0, "context": 0}
+
+
+@dataclass
+class StudyModel:
+    """What a finished study gives for one town and learner: its settings and the final meta ensemble."""
+
+    folder: Path
+    town: str
+    learner: str
+    n_actions: int
+    train: TrainConfig
+    planner: dict[str, Any]  # the study's planner options (kind retime by default)
+    model_config: dict[str, Any]
+    members: list[dict[str, Any]]  # every ensemble member's state dict
+    config: dict[str, Any] = field(repr=False, default_factory=dict)  # the whole study.json
+
+    @property
+    def K(self) -> int:
+        """The history window the model reads (the env's ``HistoryWindow`` must match)."""
+        return int(self.model_config["K"])
+
+    @property
+    def meta(self) -> bool:
+        """Whether the learner adapts to a user (``sysid`` does not)."""
+        return self.learner != "sysid"
+
+    def env_config(self, n_actions: int | None = None) -> dict[str, Any]:
+        """The navigation env's config entries of the study's drives in an ``n_actions`` env (default: the
+        learner's): the planning context lengths its planner needs and the playback actions (as ``runner._env``)."""
+        n = self.n_actions if n_actions is None else n_actions
+        return {"adaptive_speed": n == 21, **env_planning_config(self.planner)}
+
+    def trainer(self, buffers: RoundBuffers | None = None, seed: int = 0) -> EnsembleTrainer:
+        """An ensemble trainer starting from the study's final members (fresh Adam with the study's ``lr``: the
+        checkpoint's moments belong to the study's stream of drivers, not to this one)."""
+        return EnsembleTrainer.from_states(self.model_config, self.members, self.train, buffers, seed)
+
+
+def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> StudyModel:
+    """Read a finished study's settings and final ensemble of ``learner`` in ``town``; :class:`PlayError` (one line)
+    for a missing or unfinished study folder, a town it did not run, a learner it did not train.
+
+    >>> load_study("/nonexistent", "Town1")
+    Traceback (most recent call last):
+    ...
+    pernav.play.loop.PlayError: no study folder '/nonexistent'
+    """
+    from pernav.study.runner import final_models
+
+    folder = Path(study_dir)
+    if not folder.is_dir():
+        raise PlayError(f"no study folder {str(folder)!r}")
+    marker = folder / "study.json"
+    if not marker.is_file():
+        raise PlayError(f"{str(folder)!r} holds no pernav study (no study.json)")
+    try:
+        config = json.loads(marker.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise PlayError(f"{str(marker)!r} is corrupted") from None
+    if not isinstance(config, dict):
+        raise PlayError(f"{str(marker)!r} is not a study configuration")
+    if not (folder / "results.json").is_file():
+        raise PlayError(f"the study in {str(folder)!r} is not finished (no results.json): finish it with "
+                        "pernav study --resume")
+    towns = list(config.get("towns") or [])
+    if town not in towns:
+        raise PlayError(f"the study in {str(folder)!r} did not run {town}; it ran {', '.join(towns) or 'no town'}")
+    methods = list(config.get("methods") or [])
+    if learner not in LEARNERS or not (learner in methods or (learner == "adapt" and "hindsight" in methods)):
+        trained = [m for m in LEARNERS if m in methods or (m == "adapt" and "hindsight" in methods)]
+        raise PlayError(f"learner {learner!r} not in the study; it trained {', '.join(trained) or 'none'}")
+    known = {f.name for f in fields(TrainConfig)}
+    train = TrainConfig(**{**_TRAIN_ADDED, **{k: v for k, v in (config.get("train") or {}).items() if k in known}})
+    try:
+        model, members = final_models(folder, town, learner)
+    except (CheckpointError, OSError, KeyError, RuntimeError, EOFError, pickle.UnpicklingError, json.JSONDecodeError) as exc:
+        raise PlayError(f"cannot read the study's {town} checkpoint: {' '.join(str(exc).split())}") from None
+    return StudyModel(folder, town, learner, LEARNERS[learner], train, dict(config.get("planner") or {"kind": "retime"}),
+                      model.config(), members, config)
+
+
+def _in_model_space(trajectory: TensorDictBase, n_actions: int) -> TensorDictBase:
+    """A drive in the model's action space: a 7-action drive (explore) re-encoded for a 21-action model, with the
+    planning context the rescue check reads (as the study's runner does)."""
+    drive_actions = trajectory["history"].shape[-1] - trajectory["observation"].shape[-1]  # one-hot width
+    if n_actions != 21 or drive_actions == 21:
+        return trajectory
+    out = to_speed_actions(trajectory)
+    for key in ("route_ahead", "explore_future"):
+        if key in trajectory.keys():
+            out[key] = trajectory[key]
+    if "action_mask" in trajectory.keys():
+        out["action_mask"] = trajectory["action_mask"].repeat_interleave(3, -1)
+    return out
+
+
+def adapted_parameters(study: StudyModel, trainer: EnsembleTrainer, drives: Sequence[TensorDictBase],
+                       seed: int = 0) -> list[TensorDictBase]:
+    """Every member's parameters for planning with a person whose latest drives are ``drives`` (the last one is
+    their tau), by the study's own test-time rule (``runner.Learner.adapted``): ``U(P, tau)`` with the study's
+    ``alpha``, ``L``, ``backtrack`` and ``max_grad_norm``; or, where the study adapted by ``personal_updates``,
+    that many updates on the drives. No drives (or ``sysid``): the meta parameters themselves.
+
+    >>> study = load_study("runs/smoke", "Town1")                                      # doctest: +SKIP
+    >>> len(adapted_parameters(study, study.trainer(), [tau])) == study.train.ensemble  # doctest: +SKIP
+    True
+    """
+    if not drives or not study.meta:
+        return [meta_parameters(m.model).detach().clone() for m in trainer.members]
+    for d in drives:
+        if d["history"].shape[-2] != study.K:
+            raise PlayError(f"a drive with a history of {d['history'].shape[-2]} steps: the study's model reads "
+                            f"{study.K} (record it with this study's policy or session)")
+    drives = [_in_model_space(d, study.n_actions) for d in drives]
+    if study.train.personal_updates:
+        return trainer.fine_tuned(list(drives), study.train.personal_updates, seed, replay=study.train.personal_replay)
+    return trainer.parameters(drives[-1], adapted=True, alpha=study.train.alpha)
+
+
+class StudyPolicy:
+    """A study's MPC planner with given (adapted) parameters, callable as a :class:`PlaySession` policy.
+
+    ``env_config`` and ``K`` are the env settings the study planned on; a :class:`PlaySession` with this policy
+    takes them (so the history window and the planning context match the planner)."""
+
+    __name__ = "study"
+
+    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None,
+                 tau: TensorDictBase | None = None) -> None:
+        model = DynamicsModel(**study.model_config)
+        model.load_state_dict(study.members[0])
+        self.study = study
+        self.planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), study.planner, study.n_actions)
+        self.rescue = getattr(self.planner, "rescue", None)  # the study's rescue distance (None: no rescue)
+        self.env_config, self.K, self.n_actions = study.env_config(), study.K, study.n_actions
+        self.set_parameters(params, tau)
+
+    def set_parameters(self, params: list[TensorDictBase] | None, tau: TensorDictBase | None = None) -> None:
+        """Plan with ``params`` (every member's; ``None``: the first member's own weights). A planner with a
+        rescue distance rescues only where its alarm on this person's ``tau`` proves right, at the distance that
+        check gives, as in the study's rounds (``runner._rescue_check``); without a tau, not at all."""
+        self.planner.params = params
+        if self.rescue is None or not getattr(self.planner, "rescue_evidence", False):
+            return
+        self.planner.rescue = self.rescue  # the check starts from the study's distance
+        if tau is None:
+            self.planner.rescue = None
+            return
+        counts = self.planner.alarm_check(_in_model_space(tau, self.n_actions))
+        self.planner.rescue = counts["threshold"] if counts["hits_at_threshold"] > 0 else None
+
+    def __call__(self, td: TensorDictBase) -> TensorDictBase:
+        return self.planner(td)
+
+
+def study_policy(study_dir: str | Path, town: str, tau_trajectories: TensorDictBase | Sequence[TensorDictBase] | None
+                 = None, learner: str = "adapt", seed: int = 0) -> tuple[StudyPolicy, dict[str, Any]]:
+    """The study's MPC policy for ``town`` adapted to a person on ``tau_trajectories`` (their explore drive(s),
+    e.g. :func:`~pernav.trainer.drives.load_drive`; ``None``: the meta model unadapted), and what it is.
+
+    >>> policy, info = study_policy("runs/smoke", "Town1", load_drive("me/tau.pt"))      # doctest: +SKIP
+    >>> info["adapted"], info["planner"]["kind"], policy.env_config["future_steps"]     # doctest: +SKIP
+    (True, 'retime', 18)
+    """
+    study = load_study(study_dir, town, learner)
+    drives = [] if tau_trajectories is None else (
+        [tau_trajectories] if isinstance(tau_trajectories, TensorDictBase) else list(tau_trajectories))
+    trainer = study.trainer(seed=seed)
+    params = adapted_parameters(study, trainer, drives, seed)
+    policy = StudyPolicy(study, params, drives[-1] if drives else None)
+    info = {"study": str(study.folder), "town": town, "learner": learner, "members": len(study.members),
+            "adapted": bool(drives) and study.meta,
+            "adaptation": ("personal_updates" if study.train.personal_updates else "U") if drives and study.meta else None,
+            "tau_steps": [int(d.shape[0]) for d in drives], "planner": {"kind": "retime", **study.planner},
+            "env_config": dict(policy.env_config), "K": policy.K,
+            "rescue": getattr(policy.planner, "rescue", None)}
+    return policy, info
+
+
+# ----- Algorithm 1 with a person -------------------------------------------------------------------------------
+@dataclass
+class PersonalResult:
+    """A session's drives (one record per drive: its metrics, round, policy, file) and the summary table."""
+
+    drives: list[dict[str, Any]]
+    summary: dict[str, Any]
+    folder: Path | None
+    interrupted: bool
+
+
+def _policy_row(drives: list[dict[str, Any]]) -> dict[str, Any]:
+    n = len(drives)
+    return {"drives": n,
+            "tracking_cost_mean": round(sum(d["tracking_cost"] for d in drives) / n, 2) if n else None,
+            "collisions": sum(d["collisions"] for d in drives),
+            "missed_turns": sum(d["missed_turns"] for d in drives),
+            "completed": sum(bool(d["completed"]) for d in drives),
+            "completion": round(sum(bool(d["completed"]) for d in drives) / n, 4) if n else None}
+
+
+def summarize_drives(drives: list[dict[str, Any]]) -> dict[str, Any]:
+    """Per policy over the paired rounds' whole drives (a quit drive is recorded but not counted): drives, mean
+    tracking cost, collisions, missed turns, completed; and the mean paired difference (adapted - explore) of the
+    tracking cost over the routes driven whole with both."""
+    whole = [d for d in drives if d["round"] > 0 and not d["interrupted"]]
+    policies = {name: _policy_row([d for d in whole if d["policy"] == name]) for name in POLICY_NAMES}
+    by_round: dict[int, dict[str, float]] = {}
+    for d in whole:
+        by_round.setdefault(d["round"], {})[d["policy"]] = d["tracking_cost"]
+    pairs = [r["adapted"] - r["explore"] for r in by_round.values() if len(r) == 2]
+    return {"policies": policies, "paired_routes": len(pairs),
+            "paired_cost_difference_mean": round(sum(pairs) / len(pairs), 2) if pairs else None}
+
+
+def summary_markdown(summary: dict[str, Any]) -> str:
+    """The summary's table in Markdown.
+
+    >>> print(summary_markdown(summarize_drives([])).splitlines()[2])
+    | adapted | 0 | - | 0 | 0 | 0/0 |
+    """
+    lines = ["| policy | drives | mean tracking cost | collisions | missed turns | completed |",
+             "|---|---|---|---|---|---|"]
+    for name, row in summary["policies"].items():
+        cost = "-" if row["tracking_cost_mean"] is None else f"{row['tracking_cost_mean']:.0f}"
+        lines.append(f"| {name} | {row['drives']} | {cost} | {row['collisions']} | {row['missed_turns']} | "
+                     f"{row['completed']}/{row['drives']} |")
+    if summary.get("paired_routes"):
+        lines.append("")
+        lines.append(f"Paired routes: {summary['paired_routes']}; mean tracking cost difference (adapted - explore): "
+                     f"{summary['paired_cost_difference_mean']:+.0f} (negative: the adapted policy did better).")
+    return "\n".join(lines)
+
+
+def _atomic_write(path: Path, write: Callable[[Path], Any]) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        write(tmp)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+class PersonalSession:
+    """Algorithm 1 with a person: tau on ``routes[0]`` with explore, then every next route driven with the adapted
+    MPC policy and with explore in a hidden random order, FTML updates and re-adaptation after every round.
+
+    ``controls``: ``None`` (the scripted bot, a fresh one per drive), controls to reuse for every drive (a
+    joystick), or a zero-argument factory called once per drive after its window is open (``KeyboardControls``).
+    ``updates``: meta updates after each round (default: the study's ``train.updates``, at most :data:`UPDATES`).
+    ``announce`` is called with a neutral line before each drive ("Drive 2 of 5: Town1 route 3") and after it (how
+    it went, not with which policy), ``ready`` after the announcement (e.g. waits for the person to press Enter);
+    ``window``, ``speaker`` as :class:`PlaySession`. ``record_dir`` must not hold another session.
+
+    >>> session = PersonalSession("runs/smoke", "Town1", [0, 3, 5], seed=1)   # doctest: +SKIP
+    >>> session.order                                                          # doctest: +SKIP
+    [('explore', 'adapted'), ('adapted', 'explore')]
+    """
+
+    def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
+                 context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
+                 n_traffic: int = 8, updates: int | None = None, learner: str = "adapt", window: bool = False,
+                 speaker: Any = None, announce: Callable[[str], None] | None = None,
+                 ready: Callable[[], None] | None = None, progress: bool = True) -> None:
+        routes = list(routes)
+        if town not in TOWN_NAMES:
+            raise PlayError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
+        n_routes = len(get_town(town).routes)
+        if len(routes) < 2:
+            raise PlayError(f"need at least two routes (tau's, then one or more to compare on), got {routes}")
+        bad = [r for r in routes if isinstance(r, bool) or not isinstance(r, int) or not 0 <= r < n_routes]
+        if bad:
+            raise PlayError(f"unknown route {bad[0]!r} in {town}; routes are 0-{n_routes - 1}")
+        if seed < 0:
+            raise PlayError(f"seed must be >= 0, got {seed}")
+        if updates is not None and updates < 0:
+            raise PlayError(f"updates must be >= 0, got {updates}")
+        self.record_dir = None if record_dir is None else Path(record_dir)
+        if self.record_dir is not None:
+            if self.record_dir.exists() and not self.record_dir.is_dir():
+                raise PlayError(f"record folder {str(self.record_dir)!r} exists and is not a folder")
+            if any((self.record_dir / name).exists() for name in SESSION_FILES):
+                raise PlayError(f"record folder {str(self.record_dir)!r} already holds a personalization session; "
+                                "choose another")
+        self.study = load_study(study_dir, town, learner)
+        if self.study.n_actions != 7:
+            raise PlayError(f"a personalization session compares 7-action policies; {learner!r} has "
+                            f"{self.study.n_actions} actions")
+        self.town, self.routes, self.seed = town, routes, int(seed)
+        self.user, self.context, self.n_traffic = user, context, int(n_traffic)
+        self.controls, self.window, self.speaker = controls, window, speaker
+        self.announce = announce or (lambda line: None)
+        self.ready = ready or (lambda: None)
+        self.progress = progress
+        self.updates = min(self.study.train.updates, UPDATES) if updates is None else int(updates)
+        # the person's rounds: round 0 holds tau; round t its two drives, the explore one as its tau
+        self.buffers = RoundBuffers(L=self.study.train.L, seed=derive_seed(seed, town, "personal", "buffers"))
+        self.trainer = self.study.trainer(self.buffers, seed=derive_seed(seed, town, "personal", "trainer"))
+        self.policy = StudyPolicy(self.study)
+        self.params: list[TensorDictBase] | None = None  # adapted on the latest tau (set after round 0)
+        self.adapted_on: int | None = None  # the round whose tau self.params are adapted on
+        self.drives: list[dict[str, Any]] = []
+        self.meta_losses: list[float] = []
+
+    @property
+    def order(self) -> list[tuple[str, str]]:
+        """The hidden order of the two policies on each compared route (``routes[1:]``), drawn from the seed."""
+        out = []
+        for r in range(1, len(self.routes)):
+            first_adapted = random.Random(derive_seed(self.seed, self.town, "order", r)).random() < 0.5
+            out.append(POLICY_NAMES if first_adapted else POLICY_NAMES[::-1])
+        return out
+
+    def _controls(self) -> Any:
+        """This drive's controls: a fresh bot, the controls given, or a new one from the factory given."""
+        if self.controls is None:
+            return ScriptedControls()
+        if hasattr(self.controls, "read") and not isinstance(self.controls, type):
+            return self.controls
+        return self.controls()  # a factory: keyboard controls need the drive's window open
+
+    def _drive(self, round_: int, route: int, policy_name: str, label: str, number: int, total: int
+               ) -> PlayResult:
+        """One drive, recorded at once; both drives of a round share the world's seed (same traffic, same luck)."""
+        self.announce(f"Drive {number} of {total}: {self.town} route {route}")
+        self.ready()
+        policy = self.policy if policy_name == "adapted" else "explore"
+        session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
+                              seed=derive_seed(self.seed, self.town, "drive", round_), n_traffic=self.n_traffic,
+                              window=self.window, speaker=self.speaker, K=self.study.K,
+                              env_config=self.study.env_config(7))
+        try:
+            session.controls = self._controls()
+            result = session.run()
+        finally:
+            if session.view is not None:  # the speaker stays: it serves the next drive
+                session.view.close()
+        m = result.metrics
+        record = {**m, "policy": policy_name, "round": round_, "label": label, "tau": round_ == 0 or policy_name
+                  == "explore", "adapted_on_round": self.adapted_on if policy_name == "adapted" else None,
+                  "frames": result.frame_stats(), "file": None}
+        if result.trajectory is not None and self.record_dir is not None:
+            name = f"round{round_:02d}-route{route}-{label}"
+            record["file"] = str(save_drive(result.trajectory, record, self.record_dir, name))
+        self.drives.append(record)
+        state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
+        self.announce(f"  {state} after {m.get('time', 0):.0f} s: tracking cost {m.get('tracking_cost', 0):.0f}, "
+                      f"collisions {m.get('vehicle_collisions', 0)}, missed turns {m.get('missed_turns', 0)}")
+        return result
+
+    def _learn(self, round_: int, tau: TensorDictBase, other: TensorDictBase | None = None) -> None:
+        """Add the round's drives (``tau`` as its adaptation trajectory), take the meta updates on all rounds so
+        far, and adapt the planner's parameters on this tau."""
+        import logging
+
+        from tqdm.auto import tqdm
+
+        logging.getLogger("torchrl").setLevel(logging.WARNING)  # no note of every round's new storage
+        self.buffers.add(round_, tau, tau=True)
+        if other is not None:
+            self.buffers.add(round_, other)
+        for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
+            self.meta_losses.extend(self.trainer.train(1, meta=True))
+        self.params = adapted_parameters(self.study, self.trainer, [tau],
+                                         derive_seed(self.seed, self.town, "personal", round_))
+        self.policy.set_parameters(self.params, tau)
+        self.adapted_on = round_
+
+    def run(self) -> PersonalResult:
+        """Drive the rounds; stops early when the person quits. Writes the summary with what was driven."""
+        total = 1 + 2 * (len(self.routes) - 1)
+        interrupted = False
+        try:
+            tau = self._drive(0, self.routes[0], "explore", "tau", 1, total)
+            interrupted = bool(tau.metrics["interrupted"])
+            if not interrupted:
+                self._learn(0, tau.trajectory)
+            for r, route in enumerate(self.routes[1:], start=1):
+                if interrupted:
+                    break
+                done: dict[str, PlayResult] = {}
+                for j, name in enumerate(self.order[r - 1]):
+                    done[name] = self._drive(r, route, name, f"drive{j + 1}", 2 * r + j, total)
+                    if done[name].metrics["interrupted"]:
+                        interrupted = True
+                        break
+                if not interrupted:  # (after the last round too: model.pt keeps what all the drives taught)
+                    self._learn(r, done["explore"].trajectory, done["adapted"].trajectory)
+        except KeyboardInterrupt:
+            interrupted = True
+        return self._finish(interrupted)
+
+    def _finish(self, interrupted: bool) -> PersonalResult:
+        summary = {"study": str(self.study.folder), "town": self.town, "routes": self.routes, "seed": self.seed,
+                   "user": self.user if isinstance(self.user, str) else "custom", "learner": self.study.learner,
+                   "updates_per_round": self.updates, "interrupted": interrupted,
+                   "order": [list(o) for o in self.order[: max((d["round"] for d in self.drives), default=0)]],
+                   **summarize_drives(self.drives),
+                   "drives": [{k: d[k] for k in ("round", "route", "label", "policy", "tracking_cost", "collisions",
+                                                 "missed_turns", "completed", "interrupted", "file") if k in d}
+                              for d in self.drives]}
+        if self.record_dir is not None and any(d["file"] for d in self.drives):
+            _atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+            _atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
+                f"# Personalization: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
+                f"{summary_markdown(summary)}\n"))
+            _atomic_write(self.record_dir / "model.pt", lambda p: torch.save(
+                {"study": str(self.study.folder), "town": self.town, "learner": self.study.learner,
+                 "saved": time.strftime("%Y-%m-%d %H:%M:%S"), "trainer": self.trainer.state_dict()}, p))
+        if self.speaker is not None and hasattr(self.speaker, "close"):
+            self.speaker.close()
+        return PersonalResult(list(self.drives), summary, self.record_dir, interrupted)
+

@@ -1,0 +1,231 @@
+"""A study's model personalized to a person (`pernav personalize`, `pernav play --policy study`), headless: the
+scripted bot drives, on the smallest study there is (one offline and one online round, adapt only)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+
+import pytest
+import torch
+
+from pernav.cli import main
+from pernav.model.adapt import meta_parameters
+from pernav.planner.factory import env_planning_config
+from pernav.play.controls import ScriptedControls
+from pernav.play.loop import PlayError, PlaySession
+from pernav.play.personal import POLICY_NAMES, PersonalSession, StudyPolicy, load_study, study_policy, summary_markdown
+from pernav.trainer.drives import load_drive, read_metrics
+
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+
+PLANNER = {"kind": "retime", "horizon": 8, "advance": 4}  # not the defaults: the env must follow the study
+K = 3  # nor is this history window
+
+
+@pytest.fixture(scope="module")
+def study_dir(tmp_path_factory):
+    """A finished study in seconds: smoke's model, one offline and one online round, adapt alone, U on tau."""
+    from pernav.study import preset, run_study
+
+    cfg = preset("smoke")
+    cfg.methods, cfg.schedule, cfg.calibration = ["adapt"], cfg.schedule[:2], 0
+    cfg.train.personal_updates, cfg.train.K, cfg.train.warm_updates = 0, K, 10
+    cfg.planner = dict(PLANNER)
+    out = tmp_path_factory.mktemp("study")
+    run_study(cfg, out, report=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def session(study_dir, tmp_path_factory):
+    """tau on route 0, then route 1 with both policies; two meta updates after each round."""
+    lines: list[str] = []
+    record = tmp_path_factory.mktemp("personal") / "me"
+    s = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
+                        announce=lines.append, progress=False)
+    return s, s.run(), lines
+
+
+def test_session_drives_tau_then_both_policies(session):
+    s, result, _ = session
+    assert not result.interrupted
+    assert [(d["round"], d["label"]) for d in result.drives] == [(0, "tau"), (1, "drive1"), (1, "drive2")]
+    assert result.drives[0]["policy"] == "explore"
+    assert sorted(d["policy"] for d in result.drives[1:]) == ["adapted", "explore"]
+    assert [d["policy"] for d in result.drives[1:]] == list(s.order[0])
+    assert all(d["completed"] and not d["interrupted"] for d in result.drives)
+    adapted = next(d for d in result.drives if d["policy"] == "adapted")
+    assert adapted["adapted_on_round"] == 0  # planned with the parameters adapted on tau
+
+
+def test_drives_are_recorded_and_load(session):
+    s, result, _ = session
+    for d in result.drives:
+        td = load_drive(d["file"])
+        assert td.shape[0] == d["steps"] and td["history"].shape[-2] == K  # the study's history window
+        meta = read_metrics(d["file"])
+        assert meta["policy"] == d["policy"] and meta["round"] == d["round"]
+        assert d["policy"] not in os.path.basename(d["file"])  # the file names do not tell either
+    assert (s.record_dir / "model.pt").is_file()
+    saved = torch.load(s.record_dir / "model.pt", weights_only=False)
+    assert len(saved["trainer"]["members"]) == len(s.study.members)
+
+
+def test_summary_table_has_both_policies_in_range(session):
+    s, result, _ = session
+    summary = json.loads((s.record_dir / "summary.json").read_text())
+    assert summary == json.loads(json.dumps(result.summary))
+    assert set(summary["policies"]) == set(POLICY_NAMES)
+    for row in summary["policies"].values():
+        assert row["drives"] == 1 and 0 <= row["completion"] <= 1 and row["tracking_cost_mean"] >= 0
+        assert row["collisions"] >= 0 and row["missed_turns"] >= 0 and 0 <= row["completed"] <= row["drives"]
+    assert summary["paired_routes"] == 1
+    costs = {d["policy"]: d["tracking_cost"] for d in result.drives[1:]}
+    assert summary["paired_cost_difference_mean"] == pytest.approx(costs["adapted"] - costs["explore"], abs=0.01)
+    table = (s.record_dir / "summary.md").read_text()
+    assert "| adapted | 1 |" in table and "| explore | 1 |" in table
+
+
+def test_prompts_and_announcements_do_not_tell_the_policy(session):
+    _, result, lines = session
+    assert sum(line.startswith("Drive ") for line in lines) == len(result.drives)
+    for line in lines:
+        assert not any(word in line.lower() for word in ("explore", "adapt", "mpc", "study", "policy"))
+
+
+def test_meta_model_learns_and_adapted_parameters_differ(session, study_dir):
+    s, _, _ = session
+    study = load_study(study_dir, "Town1")
+    changed = [any(not torch.equal(m.model.state_dict()[k], state[k]) for k in state)
+               for m, state in zip(s.trainer.members, study.members, strict=True)]
+    assert all(changed)  # every member took the FTML updates on the person's drives
+    assert len(s.meta_losses) == 2 * s.updates and all(torch.isfinite(torch.tensor(s.meta_losses)))
+    assert s.adapted_on == 1  # re-adapted on the latest tau
+    for m, p in zip(s.trainer.members, s.params, strict=True):
+        meta = meta_parameters(m.model).detach()
+        assert any(not torch.equal(meta[k], p[k]) for k in meta.keys(True, True))
+    assert s.policy.planner.params is s.params
+
+
+def test_order_is_random_but_reproducible(study_dir):
+    routes = list(range(10))
+    orders = {seed: PersonalSession(study_dir, "Town1", routes, seed=seed).order for seed in range(4)}
+    assert orders[0] == PersonalSession(study_dir, "Town1", routes, seed=0).order
+    assert all(sorted(o) == sorted(POLICY_NAMES) for order in orders.values() for o in order)
+    assert len({tuple(o) for o in orders[0]}) == 2  # both orders occur over the routes
+    assert len({tuple(order) for order in orders.values()}) > 1  # and the seed changes them
+
+
+def test_adapted_policy_plans_on_the_studys_env(study_dir, session):
+    tau = load_drive(session[1].drives[0]["file"])
+    policy, info = study_policy(study_dir, "Town1", tau)
+    assert info["adapted"] and info["adaptation"] == "U" and info["K"] == K and info["members"] == 2
+    assert policy.env_config == {"adaptive_speed": False, **env_planning_config(PLANNER)}
+    assert (policy.planner.horizon, policy.planner.advance) == (8, 4)
+    play = PlaySession("Town1", 2, policy=policy, n_traffic=1)  # takes K and the planning context from the policy
+    assert play.nav.config["future_steps"] == 12 and play.env.transform.K == K
+    result = play.run(max_steps=4)
+    actions = result.trajectory["action"].reshape(-1)
+    assert ((actions >= 0) & (actions < 7)).all() and result.metrics["policy"] == "study"
+    unadapted, info0 = study_policy(study_dir, "Town1")
+    assert not info0["adapted"]
+    a, b = policy.planner.params[0], unadapted.planner.params[0]
+    assert any(not torch.equal(a[k], b[k]) for k in a.keys(True, True))
+    with pytest.raises(PlayError, match="history of 5 steps"):
+        study_policy(study_dir, "Town1", PlaySession("Town1", 0, n_traffic=0).run(max_steps=3).trajectory)
+
+
+def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
+    made = []
+
+    def controls():  # the person quits two seconds into their second drive
+        made.append(ScriptedControls(quit_after=20 if made else None))
+        return made[-1]
+
+    record = tmp_path / "me"
+    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, record_dir=record, n_traffic=0,
+                             updates=1, progress=False).run()
+    assert result.interrupted and len(result.drives) == 2 and result.drives[1]["interrupted"]
+    assert all(load_drive(d["file"]).shape[0] == d["steps"] for d in result.drives)
+    summary = json.loads((record / "summary.json").read_text())
+    assert summary["interrupted"] and all(r["drives"] == 0 for r in summary["policies"].values())
+    assert "| adapted | 0 | - |" in summary_markdown(summary)
+
+
+def test_bad_study_folders(study_dir, tmp_path):
+    with pytest.raises(PlayError, match="no study folder"):
+        load_study(tmp_path / "none", "Town1")
+    unfinished = tmp_path / "unfinished"
+    shutil.copytree(study_dir, unfinished)
+    (unfinished / "results.json").unlink()
+    with pytest.raises(PlayError, match="not finished"):
+        load_study(unfinished, "Town1")
+    with pytest.raises(PlayError, match="not in the study"):
+        load_study(study_dir, "Town1", learner="sysid")
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "summary.json").write_text("{}")
+    with pytest.raises(PlayError, match="already holds"):
+        PersonalSession(study_dir, "Town1", [0, 1], record_dir=taken)
+    assert isinstance(study_policy(study_dir, "Town1")[0], StudyPolicy)
+
+
+@pytest.mark.parametrize("args", [
+    ["--study", "{missing}", "--town", "Town1", "--routes", "0", "1"],
+    ["--study", "{study}", "--town", "Town2", "--routes", "0", "1"],  # a town the study did not run
+    ["--study", "{study}", "--town", "Town1", "--routes", "0", "12"],
+    ["--study", "{study}", "--town", "Town1", "--routes", "0"],
+    ["--study", "{study}", "--town", "Town9", "--routes", "0", "1"],
+    ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--updates", "-1"],
+    ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--seed", "-1"],
+])
+def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
+    rec = tmp_path / "rec"
+    args = [a.format(missing=tmp_path / "missing", study=study_dir) for a in args]
+    assert main(["personalize", *args, "--headless", "--no-audio", "--record", str(rec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pernav personalize: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert not rec.exists()
+
+
+@pytest.mark.parametrize("args", [
+    ["--policy", "study"], ["--policy", "study", "--study", "{missing}"], ["--study", "{study}"],
+    ["--policy", "study", "--study", "{study}", "--town", "Town2"],
+    ["--policy", "study", "--study", "{study}", "--tau", "{missing}"],
+    ["--policy", "study", "--study", "{study}", "--tau", "{study}/study.json"],
+    ["--policy", "study", "--study", "{study}", "--playback", "slower"],
+])
+def test_cli_play_study_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
+    rec = tmp_path / "rec"
+    args = [a.format(missing=tmp_path / "missing", study=study_dir) for a in args]
+    assert main(["play", *args, "--headless", "--no-audio", "--record", str(rec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pernav play: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert not rec.exists()
+
+
+def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, capsys):
+    rec = tmp_path / "me"
+    assert main(["personalize", "--study", str(study_dir), "--town", "Town1", "--routes", "0", "1", "--headless",
+                 "--no-audio", "--traffic", "1", "--updates", "1", "--record", str(rec)]) == 0
+    out = capsys.readouterr().out
+    assert "| adapted | 1 |" in out and "| explore | 1 |" in out and f"recorded: {rec}" in out
+    assert len(list(rec.glob("*.pt"))) == 4  # three drives and the model
+    tau = rec / "round00-route0-tau.pt"
+    play = tmp_path / "play"
+    assert main(["play", "--policy", "study", "--study", str(study_dir), "--tau", str(tau), "--route", "2",
+                 "--headless", "--no-audio", "--traffic", "1", "--record", str(play), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["policy"] == "study" and out["study"]["adapted"] and out["study"]["K"] == K
+    assert load_drive(out["record"]).shape[0] == out["steps"]
+
+
+def test_docstring_examples():
+    import doctest
+
+    import pernav.play.personal
+
+    assert doctest.testmod(pernav.play.personal).failed == 0
