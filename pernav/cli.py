@@ -136,13 +136,17 @@ def _play(args: argparse.Namespace) -> None:
     context = _check_drive_args(args)
     if args.screenshot is not None:
         _check_output_file("--screenshot", args.screenshot, ".png")
+    if args.history is not None and not 1 <= args.history <= 50:
+        raise UsageError(f"--history must be in [1, 50], got {args.history}")
+    if args.history is not None and args.policy == "study":
+        raise UsageError("--history: with --policy study the window is the study's own")
     study = _study_policy(args)
     from pernav.play.controls import JoystickControls, KeyboardControls
     from pernav.play.loop import PlaySession, make_speaker
     from pernav.trainer.drives import save_drive
 
     speaker = make_speaker(args.audio)  # before any window: a missing device asked for is an error
-    session = PlaySession(args.town, args.route, args.user, context=context,
+    session = PlaySession(args.town, args.route, args.user, context=context, K=args.history,
                           policy=args.policy if study is None else study[0], seed=args.seed,
                           n_traffic=args.traffic, playback=args.playback, window=not args.headless,
                           speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at)
@@ -270,6 +274,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tau", metavar="FILE", help="with --policy study: a recorded explore drive (.pt) of the person "
                    "to adapt the model on (default: unadapted)")
     p.add_argument("--playback", default="normal", help="speed of the spoken prompts: slower, normal, faster")
+    p.add_argument("--history", type=int, metavar="K", help="steps of the recorded history window (default 5; the "
+                   "K of the study that will learn from the drive: the default preset's is 10; with --policy study: "
+                   "the study's)")
     _drive_options(p, "save the drive (study format) and its metrics in this folder")
     p.add_argument("--screenshot", metavar="PNG", help="save a picture of the window (one second after the first "
                    "prompt, or at --screenshot-at)")

@@ -173,7 +173,7 @@ def test_cli_records_a_headless_drive(tmp_path, capsys):
 
 @pytest.mark.parametrize("args", [
     ["--town", "Town9"], ["--route", "12"], ["--policy", "magic"], ["--user", "nobody"], ["--input", "mouse"],
-    ["--playback", "fast"], ["--seed", "-1"], ["--audio"], ["--screenshot", "shot.jpg"],
+    ["--playback", "fast"], ["--seed", "-1"], ["--audio"], ["--screenshot", "shot.jpg"], ["--history", "0"],
 ])
 def test_cli_bad_input_exits_2_and_writes_nothing(args, tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")  # --audio asked for, but no device
