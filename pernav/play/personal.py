@@ -53,7 +53,7 @@ from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, to_speed_actions
-from pernav.trainer.drives import save_drive
+from pernav.trainer.drives import atomic_write, save_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES, get_town
@@ -303,15 +303,6 @@ def summary_markdown(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _atomic_write(path: Path, write: Callable[[Path], Any]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        write(tmp)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 class PersonalSession:
     """Algorithm 1 with a person: tau on ``routes[0]`` with explore, then every next route driven with the adapted
     MPC policy and with explore in a hidden random order, FTML updates and re-adaptation after every round.
@@ -471,11 +462,11 @@ class PersonalSession:
                                                  "missed_turns", "completed", "interrupted", "file") if k in d}
                               for d in self.drives]}
         if self.record_dir is not None and any(d["file"] for d in self.drives):
-            _atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-            _atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
+            atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+            atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
                 f"# Personalization: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
                 f"{summary_markdown(summary)}\n"))
-            _atomic_write(self.record_dir / "model.pt", lambda p: torch.save(
+            atomic_write(self.record_dir / "model.pt", lambda p: torch.save(
                 {"study": str(self.study.folder), "town": self.town, "learner": self.study.learner,
                  "saved": time.strftime("%Y-%m-%d %H:%M:%S"), "trainer": self.trainer.state_dict()}, p))
         if self.speaker is not None and hasattr(self.speaker, "close"):

@@ -30,13 +30,14 @@ from typing import Any
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-__all__ = ["FORMAT", "load_drive", "read_metrics", "save_drive"]
+__all__ = ["FORMAT", "atomic_write", "load_drive", "read_metrics", "save_drive"]
 
 FORMAT = 1  # version of the .pt layout
 
 
-def _atomic(path: Path, write: Any) -> None:
-    """``write(tmp)`` then rename ``tmp`` to ``path`` (same folder: the rename is atomic)."""
+def atomic_write(path: Path, write: Any) -> None:
+    """``write(tmp)`` then rename ``tmp`` to ``path`` (same folder: the rename is atomic), so a reader never sees a
+    half-written file and an interrupted write leaves none."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         write(tmp)
@@ -55,8 +56,8 @@ def save_drive(trajectory: TensorDictBase, metrics: dict[str, Any], folder: str 
     folder.mkdir(parents=True, exist_ok=True)
     pt, meta = folder / f"{name}.pt", folder / f"{name}.json"
     data = {"format": FORMAT, "batch_size": list(trajectory.shape), "trajectory": trajectory.cpu().to_dict()}
-    _atomic(pt, lambda tmp: torch.save(data, tmp))
-    _atomic(meta, lambda tmp: tmp.write_text(json.dumps(metrics, indent=2)))
+    atomic_write(pt, lambda tmp: torch.save(data, tmp))
+    atomic_write(meta, lambda tmp: tmp.write_text(json.dumps(metrics, indent=2)))
     return pt
 
 
