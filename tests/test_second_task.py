@@ -60,9 +60,9 @@ def test_plain_model_learns_a_linear_system_and_adapts_to_a_changed_one() -> Non
     assert after < before / 10
     # the motor reversed: one gradient step on one trajectory of it lowers its loss on other trajectories
     tau, held_out = _linear_trajectory(-1.0, 30, 10), _windows(_linear_trajectory(-1.0, 60, 11))
-    unadapted = float(multistep_loss(model, held_out))
+    unadapted = float(multistep_loss(model, held_out).detach())
     adapted = adapt(model, tau, alpha=0.05, L=3, first_order=True, backtrack=0.5).detach()
-    assert float(multistep_loss(model, held_out, params=adapted)) < unadapted
+    assert float(multistep_loss(model, held_out, params=adapted).detach()) < unadapted
     # adapt takes the loss it descends: the single-step loss gives a different step
     one_step = adapt(model, tau, alpha=0.05, L=3, first_order=True, loss_fn=single_step_loss)
     assert not torch.equal(one_step["net", "0", "weight"], adapted["net", "0", "weight"])
