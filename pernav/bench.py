@@ -243,6 +243,9 @@ def _flat_search(planner, roots):
     reward terms; the best sequence and the model evaluations it took."""
     import torch
 
+    from pernav.model.dynamics import GX, GY, X, Y
+    from pernav.world.cost import tracking_cost
+
     model, root = planner.model, roots[0]
     H = planner.levels(roots)
     seqs = torch.cartesian_prod(*[torch.arange(model.n_actions)] * H).reshape(-1, H)
@@ -251,8 +254,7 @@ def _flat_search(planner, roots):
     with torch.no_grad():
         for h in range(H):
             state = model(hist, seqs[:, h])
-            goal = hist[:, -1, 9:11]  # the goal of the previous state: the env's reward
-            ret -= ((state[:, :2] - goal) ** 2).sum(-1)
+            ret -= tracking_cost(state[:, [X, Y]], hist[:, -1, [GX, GY]])  # vs the previous state's goal
             hist = model.next_window(hist, seqs[:, h], state)
         ret += planner.sequence_reward(roots, seqs.unsqueeze(0))[0]
     return seqs[int(ret.argmax())], seqs.numel()

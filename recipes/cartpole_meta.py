@@ -153,7 +153,8 @@ def run_seed(seed: int, args: argparse.Namespace) -> dict[str, list[float]]:
                         traj = episode(env, planner, episode_seed, args.max_steps)
                     if method == "adapt":
                         adapt_drives.append(trajectory_data(traj))
-                out[method].append([]) if e == 0 else None
+                if e == 0:
+                    out[method].append([])
                 out[method][-1].append(episode_return(traj))
         buffers.add(r, tau, tau=True)
         for drive in adapt_drives:

@@ -31,7 +31,7 @@ import numpy as np
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
-from pernav.world.layout import N_INSTRUCTIONS
+from pernav.world.layout import N_INSTRUCTIONS, TURN_INSTRUCTIONS
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
 
 __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",
@@ -39,7 +39,6 @@ __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_IN
 
 TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"
-TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)  # everything but silence refers to a junction or a roundabout
 
 
 def plan_goals(route: Route, progress: float, speed: float, horizon: int) -> np.ndarray:

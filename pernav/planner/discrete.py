@@ -129,11 +129,12 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """The number of levels searched from ``roots`` (``planning_horizon``)."""
         return self.planning_horizon
 
-    def allowed(self, roots: TensorDictBase, level: int) -> torch.Tensor:
-        """``[B, A]`` booleans: the actions each root's tree may take at ``level`` (from ``mask_key``)."""
+    def allowed(self, roots: TensorDictBase, level: int, mask: torch.Tensor | None = None) -> torch.Tensor:
+        """``[B, A]`` booleans: the actions each root's tree may take at ``level`` (from ``mask_key``; ``mask``:
+        that entry already read, as :meth:`search` does once per search)."""
         if self.mask_key is None:
             return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool)
-        mask = self._mask if getattr(self, "_mask_of", None) is roots else roots.get(self.mask_key).bool()
+        mask = roots.get(self.mask_key).bool() if mask is None else mask
         return mask[:, level] if mask.ndim == 3 else mask
 
     def step_reward(self, roots: TensorDictBase, children: dict, actions: torch.Tensor, level: int) -> torch.Tensor:
@@ -199,8 +200,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """The best sequence from each root of a flat ``[B]`` tensordict (see the class docstring)."""
         B, A = roots.shape[0], self.n_actions
         H = self.levels(roots)
-        if self.mask_key is not None:  # read once per search, not once per level
-            self._mask, self._mask_of = roots.get(self.mask_key).bool(), roots
+        mask = None if self.mask_key is None else roots.get(self.mask_key).bool()  # once per search, not per level
         nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
         parent_count = 1
         seqs = torch.zeros(B, 1, 0, dtype=torch.long)
@@ -212,14 +212,14 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         for level in range(H):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
             if B == 1:  # one root (a deployed planner): every node is real, each expands the same actions
-                actions = self.allowed(roots, level)[0].nonzero().squeeze(-1)
+                actions = self.allowed(roots, level, mask)[0].nonzero().squeeze(-1)
                 keep = None if actions.numel() else torch.zeros(1, 1, dtype=torch.bool)
                 actions = actions if actions.numel() else torch.zeros(1, dtype=torch.long)
                 k = parent_count * actions.numel()
                 index = torch.arange(parent_count).repeat_interleave(actions.numel())
                 parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
             else:
-                allowed = (valid.unsqueeze(-1) & self.allowed(roots, level).unsqueeze(1)).reshape(B, -1)  # [B, N*A]
+                allowed = (valid.unsqueeze(-1) & self.allowed(roots, level, mask).unsqueeze(1)).reshape(B, -1)  # [B, N*A]
                 k = max(int(allowed.sum(-1).max()), 1)
                 pick = torch.argsort((~allowed).to(torch.int8), dim=-1, stable=True)[:, :k]  # allowed first, in order
                 keep = allowed.gather(-1, pick)

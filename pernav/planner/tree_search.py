@@ -42,10 +42,10 @@ from pernav.model.dynamics import GX, GY, X, Y
 from pernav.model.losses import using
 from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult
 from pernav.world.cost import tracking_cost
+from pernav.world.layout import TURN_INSTRUCTIONS
 
 __all__ = ["TreeSearchPlanner"]
 
-TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)
 
 
 class TreeSearchPlanner(DiscreteTreeSearchPlanner):

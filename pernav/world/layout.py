@@ -23,6 +23,7 @@ PLAYBACK = ("slower", "normal", "faster")
 PLAYBACK_SCALE = {"slower": 1.3, "normal": 1.0, "faster": 0.75}
 AUDIO_DURATION = (0.0, 1.2, 1.2, 1.9, 1.9, 1.6, 1.2)  # seconds at normal playback
 N_INSTRUCTIONS = len(ACTION_NAMES)
+TURN_INSTRUCTIONS = (1, 2, 3, 4, 5, 6)  # everything but silence refers to a junction or a roundabout
 
 
 def audio_duration(instruction: int, playback: str = "normal") -> float:
