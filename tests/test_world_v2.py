@@ -9,6 +9,7 @@ import numpy as np
 
 from pernav.env.policies import explore_policy, oracle_policy
 from pernav.world.drivers import REACTION_CV, Context, DriverProfile, named_user, resolve
+from pernav.world.layout import audio_duration
 from pernav.world.simulation import TrafficCar, World
 from pernav.world.towns import get_town
 
@@ -128,3 +129,53 @@ def test_calibration_recipe_pairs_explore_and_oracle(tmp_path, capsys):
     assert "| Town1 |" in (out / "calibration.md").read_text()
     assert mod.main(argv) == 2  # never overwrites a finished calibration
     assert "exists" in capsys.readouterr().err
+
+
+def _premise_bound():
+    spec = importlib.util.spec_from_file_location("premise_bound", ROOT / "recipes" / "premise_bound.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_late_share_matches_sampled_reaction_draws():
+    """The analytic late share equals the share of simulated reaction draws that arrive too late."""
+    mod = _premise_bound()
+    d = resolve(named_user("user3"), Context())
+    lead, before = 5.2, 3.0
+    rng = np.random.default_rng(0)
+    u = rng.uniform(0.0, 1.0, 200_000)  # where within the decision step the lead ran out
+    r = np.array([d.reaction_draw(z) for z in rng.standard_normal(200_000)])
+    sampled = float(np.mean(audio_duration(1) + r > lead + u - before))
+    assert abs(mod.p_late(d, lead, before, n=401) - sampled) < 0.01
+    assert mod.p_late(d, lead + 1.0, before) < mod.p_late(d, lead, before)  # earlier prompts are late less often
+
+
+def test_premise_bound_lateness_and_bounds(tmp_path, capsys):
+    mod = _premise_bound()
+    rows = {r["round"]: r for r in mod.lateness(10.0)}
+    avg = rows["Online 12"]  # user7, the average driver in the average context: the same timing
+    assert avg["explore_lead_s"] == avg["oracle_lead_s"] and avg["explore_late_commit"] == avg["oracle_late_commit"]
+    slow = rows["Online 8"]  # user3: explore is late, the oracle re-timed
+    assert slow["explore_late_commit"] > 0.5 > 0.05 > slow["oracle_late_commit"]
+    assert 0 < mod.late_cells(list(rows.values())) < 63
+
+    def ep(policy, town, rnd, cost, coll, swerves, missed):
+        return {"town": town, "round": rnd, "seed": 0, "route": 0, "policy": policy, "tracking_cost": cost,
+                "collisions": coll, "swerves": swerves, "missed_turns": missed}
+    eps = [ep("explore", "Town1", 0, 500.0, 0, 2, 1), ep("oracle", "Town1", 0, 400.0, 0, 0, 0),
+           ep("explore", "Town1", 1, 300.0, 1, 0, 0), ep("oracle", "Town1", 1, 300.0, 1, 0, 0)]
+    b = mod.bounds(eps, routes=10)
+    assert b["cost_per_missed_turn"] == 100.0  # one paired miss, 100 dearer
+    assert b["as measured"]["per_town"]["Town1"] == {"explore": 5.0, "oracle": 5.0}
+    assert b["as measured"]["cells_oracle_10pct_cheaper"] == 1
+    assert b["every swerve a collision"]["per_town"]["Town1"] == {"explore": 15.0, "oracle": 5.0}
+
+    cal = tmp_path / "cal.json"
+    cal.write_text(json.dumps({"episodes": eps}))
+    assert mod.main([str(tmp_path / "pb"), "--calibration", str(cal)]) == 0
+    assert "| Online 8 | user3 |" in (tmp_path / "pb" / "premise_bound.md").read_text()
+    assert mod.main([str(tmp_path / "pb"), "--calibration", "none"]) == 2  # never overwrites
+    assert mod.main([str(tmp_path / "pb2"), "--calibration", str(tmp_path / "missing.json")]) == 2
+    assert not (tmp_path / "pb2").exists()
+    assert "is not a file" in capsys.readouterr().err
