@@ -1,7 +1,7 @@
 """How much of *this* driver's data does the learned model need before planning on it pays?
 
 The end-to-end study adapts a meta model with one gradient step on one explore trajectory, and its planner
-stays on explore (docs/planning.md). This recipe asks the question underneath: with N of the driver's own
+stays on explore (docs/findings.md, world v1). This recipe asks the question underneath: with N of the driver's own
 trajectories (explore with its prompts re-timed at random, :class:`pernav.planner.RetimedExplore`, the study's
 ``collect: retimed`` data), does an ensemble trained only on them (the study's size: 3 × [128, 128], K = 10)
 let the default planner beat explore for that driver? If it does for some N, the model class can learn a
@@ -20,7 +20,7 @@ Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/driver_data.py [--sizes 4 
 [--planner-option KEY=VALUE ...] (the planner's gate, e.g. max_spread=null) [--bootstrap] (each member fits its own
 bootstrap resample of the driver's data, :meth:`EnsembleTrainer.fine_tuned`) [--tag NAME] (appended to the method)
 
-The gate probe of docs/planning.md ("Which gate?"): a finished calibration study's ensemble, 4 own drives, 100
+The gate probe of docs/findings.md ("Which gate?"): a finished calibration study's ensemble, 4 own drives, 100
 updates, per gate: ``--init runs/hr0 --sizes 4 --updates 100 --routes 5 [--planner-option max_spread=null] [--bootstrap]``.
 """
 

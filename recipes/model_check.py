@@ -11,7 +11,7 @@ the true and the predicted divergence, and the mean absolute error, for:
   drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option).
   The step is the study's own test-time ``U`` (its ``alpha``, ``L``, gradient clip and backtracking, from its
   study.json; a model with a context adapts only it); ``--adapt-step fixed``: the study's ``alpha`` as a fixed step,
-  without clip or backtracking (for the default's alpha 0.01, how docs/planning.md's model checks were made);
+  without clip or backtracking (for the default's alpha 0.01, how the model checks in docs/findings.md (world v1) were made);
 * ``personal``: the meta model fine-tuned as a study with personal updates adapts: ``--personal-updates`` (100)
   updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).

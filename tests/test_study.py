@@ -139,7 +139,7 @@ RECIPE_CONFIGS = Path(__file__).resolve().parents[1] / "recipes" / "configs"
 @pytest.mark.parametrize("name, offline_draws", [("headroom.yaml", 0), ("headroom_prior.yaml", 6),
                                                  ("headroom_prior12.yaml", 12)])
 def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_draws):
-    """The schedule files written out for docs/planning.md parse, and their population drivers are exactly
+    """The schedule files written out for docs/findings.md parse, and their population drivers are exactly
     the draws their comments name (so a change to the prior cannot silently change what the docs measured):
     online, the panel's two; offline, the first draws of ``Population(seed=1)``."""
     entries = load_schedule(RECIPE_CONFIGS / name)
@@ -156,7 +156,7 @@ def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_dra
 @pytest.mark.parametrize(("name", "n", "seed"), [("default_prior6", 6, 1), ("default_prior12", 12, 1),
                                                  ("default_prior6b", 6, 2), ("default_prior6c", 6, 3)])
 def test_default_prior_schedules_are_the_default_schedule_with_offline_draws(name, n, seed):
-    """``default_prior*.yaml`` (docs/planning.md) are the default preset's rounds, unchanged and in order, with
+    """``default_prior*.yaml`` (docs/findings.md) are the default preset's rounds, unchanged and in order, with
     the first ``n`` draws of ``Population(seed)`` as offline rounds after the default's offline ones."""
     entries = load_schedule(RECIPE_CONFIGS / f"{name}.yaml")
     prior = [e for e in entries if not isinstance(e.driver, str)]

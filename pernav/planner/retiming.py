@@ -123,7 +123,7 @@ class RetimingPlanner(MPCPlannerBase):
             the size is the effect's largest mean distance over the horizon; ``max_spread=None``: no such test).
             ``rel_spread`` > 0 lets members that agree a re-timing moves the car tens of metres (an exit taken
             or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
-            it gained (docs/planning.md), so it is 0 by default. With one row (one model, or one true-model
+            it gained (docs/findings.md), so it is 0 by default. With one row (one model, or one true-model
             sample) the spread is 0.
         rescue: waive the spread test where every row sees explore's plan leave the planned route by more than
             this many metres within the horizon and the candidate stay within it in every row (the gain test

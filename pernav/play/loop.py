@@ -307,7 +307,7 @@ class PlaySession:
                 for _ in range(max_steps):
                     td.update(self.policy(td))
                     td = self.env.step(td)
-                    nxt = self.env._step_mdp(td)  # what env.rollout does between two steps
+                    nxt = self.env.step_mdp(td)  # what env.rollout does between two steps
                     steps.append(td.copy())
                     if bool(td["next", "done"].any()):
                         break

@@ -128,7 +128,7 @@ def _default() -> StudyConfig:
                           ensemble=3),
         # calibration drives + personal updates (--calibration 4 --personal-updates 100) are not the default:
         # over 3 seeds they closed 22 % [-12 %, 66 %] of Town3's gap but added 2 collisions and 45 % run time
-        # (docs/planning.md)
+        # (docs/findings.md, "End to end with calibration drives and personal updates"; world v1)
         collect="retimed")
 
 
