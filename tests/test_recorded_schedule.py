@@ -5,6 +5,10 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -60,12 +64,19 @@ def test_drives_resolve_relative_to_the_schedule_file_in_order(drives):
     assert "drives" not in entries[0].to_dict()  # a study without drives keeps its fingerprint
 
 
-@pytest.mark.slow
-def test_a_study_learns_from_recorded_and_simulated_drives(drives, tmp_path, capsys):
-    out = tmp_path / "study"
+@pytest.fixture(scope="module")
+def mixed_study(drives, tmp_path_factory) -> Path:
+    """The smoke study of the MIXED schedule (recorded and simulated rounds), run once for the tests below."""
+    out = tmp_path_factory.mktemp("mixed") / "study"
     schedule = _schedule(drives, MIXED)
     assert main(["study", "--preset", "smoke", "--out", str(out), "--schedule", str(schedule),
                  "--methods", *METHODS]) == 0
+    return out
+
+
+@pytest.mark.slow
+def test_a_study_learns_from_recorded_and_simulated_drives(mixed_study, drives, capsys):
+    out = mixed_study
     results = json.loads((out / "results.json").read_text())
     iterations = {it["label"]: it for it in results["iterations"]}
     assert set(iterations["Online 0"]["towns"]["Town1"]) == set(METHODS)  # simulated rounds: evaluated
@@ -94,6 +105,38 @@ def test_a_study_learns_from_recorded_and_simulated_drives(drives, tmp_path, cap
     speed = RoundBuffers.load(last / "buffers_adapt_speed").tau(3)  # re-encoded in the 21-action space
     assert torch.equal(speed["action"], second["action"].long().reshape(-1) * 3 + 1)
     capsys.readouterr()
+
+
+@pytest.mark.slow
+def test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_same_results(mixed_study, drives, tmp_path):
+    """Killed once the offline person's round is checkpointed, then resumed: the online person's round and the
+    simulated rounds after it give what the uninterrupted study gave."""
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--out", str(out), "--schedule",
+           str(drives / "schedule.json"), "--methods", *METHODS]
+    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    manifest = out / "checkpoints" / "Town1" / "manifest.json"
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:  # entry 1 is "Person warm-up" (recorded, offline)
+        try:
+            if manifest.exists() and json.loads(manifest.read_text())["index"] >= 1:
+                break
+        except json.JSONDecodeError:  # caught between two writes: look again
+            pass
+        time.sleep(0.05)
+    assert proc.poll() is None, "the study finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "results.json").exists()
+    resumed = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    got = json.loads((out / "results.json").read_text())
+    reference = json.loads((mixed_study / "results.json").read_text())
+    for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
+        assert it_got["label"] == it_ref["label"]
+        assert it_got["towns"] == it_ref["towns"], it_got["label"]
+    assert got["regret"]["Town1"]["adaptation"] == reference["regret"]["Town1"]["adaptation"]
 
 
 def _check_exits_2(args: list[str], words: list[str], capsys, out: Path) -> None:
