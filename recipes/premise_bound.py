@@ -93,6 +93,38 @@ def late_cells(rows: list[dict], excess: float = 0.05, n_towns: int = 5) -> int:
                for r in rows if r["explore_late_commit"] - r["oracle_late_commit"] >= excess)
 
 
+def split(episodes: list[dict], rows: list[dict], excess: float = 0.05, routes: int = 10) -> dict:
+    """Explore vs the oracle (paired) in the cells where explore is late (as :func:`late_cells` counts them) and
+    in the others: collisions per route set, their ratio and paired CI, tracking's paired CI, cells 10 % cheaper."""
+    from pernav.diagnostics.stats import paired_difference
+
+    late = {r["round"] for r in rows if r["explore_late_commit"] - r["oracle_late_commit"] >= excess}
+    pairs: dict[tuple, dict] = {}
+    for x in episodes:
+        pairs.setdefault((x["town"], x["label"], x["seed"], x["route"]), {})[x["policy"]] = x
+    out = {}
+    for name, want in (("late", True), ("on time", False)):
+        keys = [k for k, v in pairs.items() if (k[1] in late) == want and {"explore", "oracle"} <= set(v)]
+        if not keys:
+            continue
+        get = {p: {f: np.array([pairs[k][p][f] for k in keys]) for f in ("collisions", "tracking_cost")}
+               for p in ("explore", "oracle")}
+        cells = sorted({k[:2] for k in keys})
+        cheaper = 0
+        for cell in cells:
+            idx = [i for i, k in enumerate(keys) if k[:2] == cell]
+            cheaper += get["oracle"]["tracking_cost"][idx].mean() <= 0.9 * get["explore"]["tracking_cost"][idx].mean()
+        ec, oc = get["explore"]["collisions"], get["oracle"]["collisions"]
+        out[name] = {"cells": len(cells), "episodes": len(keys),
+                     "explore_collisions_per_route_set": float(ec.mean() * routes),
+                     "oracle_collisions_per_route_set": float(oc.mean() * routes),
+                     "oracle_over_explore": float(oc.sum() / max(ec.sum(), 1e-9)),
+                     "collisions_diff_ci": paired_difference(ec, oc),
+                     "tracking_diff_ci": paired_difference(get["explore"]["tracking_cost"], get["oracle"]["tracking_cost"]),
+                     "cells_oracle_10pct_cheaper": int(cheaper)}
+    return out
+
+
 def bounds(episodes: list[dict], routes: int = 10) -> dict:
     """Targets 1-3 from the episodes as they are, and with every swerve also a collision (and a missed
     turn at the fitted paired cost of one)."""
@@ -173,7 +205,8 @@ def swerve_probe(towns: tuple[str, ...] = ("Town1", "Town3"), rounds: tuple[int,
     return out
 
 
-def report(rows: list[dict], b: dict | None, speed: float, probe: list[dict] | None = None) -> str:
+def report(rows: list[dict], b: dict | None, speed: float, probe: list[dict] | None = None,
+           parts: dict | None = None) -> str:
     lines = [f"## Late \"turn\" prompts per online round (speed {speed:g} m/s)", "",
              "| round | driver | vehicle, camera, visual, equipment | need (mean, s) | lead explore / oracle (s) | "
              "explore late for the commit | oracle late for the commit | explore after the line |",
@@ -197,6 +230,17 @@ def report(rows: list[dict], b: dict | None, speed: float, probe: list[dict] | N
             towns = ", ".join(f"{t} {x['explore']:.2f}" for t, x in v["per_town"].items())
             lines.append(f"| {mode} | {v['explore_mean']:.2f} ({towns}) | {v['oracle_over_explore']:.0%} | "
                          f"{v['cells_oracle_10pct_cheaper']} of {v['cells']} |")
+    if parts:
+        lines += ["", "## Explore vs the oracle where explore is late and where it is on time (measured episodes)", "",
+                  "| cells | episodes | collisions / route set explore / oracle | oracle / explore | explore − oracle "
+                  "collisions per episode [95 % CI] | explore − oracle tracking [95 % CI] | oracle ≥ 10 % cheaper |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, v in parts.items():
+            c, t = v["collisions_diff_ci"], v["tracking_diff_ci"]
+            lines.append(f"| {name} ({v['cells']}) | {v['episodes']} | {v['explore_collisions_per_route_set']:.2f} / "
+                         f"{v['oracle_collisions_per_route_set']:.2f} | {v['oracle_over_explore']:.0%} | "
+                         f"{c['mean']:+.3f} [{c['low']:+.3f}, {c['high']:+.3f}] | {t['mean']:+.1f} [{t['low']:+.1f}, "
+                         f"{t['high']:+.1f}] | {v['cells_oracle_10pct_cheaper']} of {v['cells']} |")
     if probe:
         d = np.array([p["to_line"] for p in probe])
         v = np.array([p["speed"] for p in probe])
@@ -232,14 +276,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --calibration {path} is not a file (a calibration.json of "
                   "recipes/world_calibration.py, or 'none')", file=sys.stderr)
             return 2
-        b = bounds(json.loads(path.read_text())["episodes"])
+        episodes = json.loads(path.read_text())["episodes"]
+        b = bounds(episodes)
     rows = lateness(args.speed)
+    parts = split(episodes, rows) if b is not None else None
     probe = swerve_probe() if args.probe else None
     out.mkdir(parents=True)
     doc = {"speed": args.speed, "calibration": args.calibration, "lateness": rows, "late_cells": late_cells(rows),
-           "bounds": b, "swerve_probe": probe}
+           "bounds": b, "split": parts, "swerve_probe": probe}
     (out / "premise_bound.json").write_text(json.dumps(doc, indent=1))
-    text = report(rows, b, args.speed, probe)
+    text = report(rows, b, args.speed, probe, parts)
     (out / "premise_bound.md").write_text(text)
     print(text)
     return 0

@@ -161,8 +161,9 @@ def test_premise_bound_lateness_and_bounds(tmp_path, capsys):
     assert 0 < mod.late_cells(list(rows.values())) < 63
 
     def ep(policy, town, rnd, cost, coll, swerves, missed):
-        return {"town": town, "round": rnd, "seed": 0, "route": 0, "policy": policy, "tracking_cost": cost,
-                "collisions": coll, "swerves": swerves, "missed_turns": missed}
+        label = ("Online 8", "Online 12")[rnd]  # user3 (explore late), user7 (on time)
+        return {"town": town, "round": rnd, "label": label, "seed": 0, "route": 0, "policy": policy,
+                "tracking_cost": cost, "collisions": coll, "swerves": swerves, "missed_turns": missed}
     eps = [ep("explore", "Town1", 0, 500.0, 0, 2, 1), ep("oracle", "Town1", 0, 400.0, 0, 0, 0),
            ep("explore", "Town1", 1, 300.0, 1, 0, 0), ep("oracle", "Town1", 1, 300.0, 1, 0, 0)]
     b = mod.bounds(eps, routes=10)
@@ -170,6 +171,9 @@ def test_premise_bound_lateness_and_bounds(tmp_path, capsys):
     assert b["as measured"]["per_town"]["Town1"] == {"explore": 5.0, "oracle": 5.0}
     assert b["as measured"]["cells_oracle_10pct_cheaper"] == 1
     assert b["every swerve a collision"]["per_town"]["Town1"] == {"explore": 15.0, "oracle": 5.0}
+    parts = mod.split(eps, list(rows.values()))
+    assert parts["late"]["cells"] == parts["on time"]["cells"] == 1
+    assert parts["late"]["tracking_diff_ci"]["mean"] == 100.0 and parts["on time"]["tracking_diff_ci"]["mean"] == 0.0
 
     cal = tmp_path / "cal.json"
     cal.write_text(json.dumps({"episodes": eps}))
