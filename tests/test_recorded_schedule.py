@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import torch
+from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession
@@ -114,24 +112,7 @@ def test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_same_
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--out", str(out), "--schedule",
            str(drives / "schedule.json"), "--methods", *METHODS]
-    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    manifest = out / "checkpoints" / "Town1" / "manifest.json"
-    deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None:  # entry 1 is "Person warm-up" (recorded, offline)
-        try:
-            if manifest.exists() and json.loads(manifest.read_text())["index"] >= 1:
-                break
-        except json.JSONDecodeError:  # caught between two writes: look again
-            pass
-        time.sleep(0.05)
-    assert proc.poll() is None, "the study finished before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not (out / "results.json").exists()
-    resumed = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True)
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    got = json.loads((out / "results.json").read_text())
+    got = kill_then_resume(cmd, out, "Town1", index=1)  # entry 1 is "Person warm-up" (recorded, offline)
     reference = json.loads((mixed_study / "results.json").read_text())
     for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
         assert it_got["label"] == it_ref["label"]

@@ -3,14 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
-import signal
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
@@ -78,21 +75,7 @@ def test_killed_study_resumes_to_the_same_results(two_workers, tmp_path):
     _, reference = two_workers
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--towns", "Town1", "--out", str(out)]
-    env = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    manifest = out / "checkpoints" / "Town1" / "manifest.json"
-    deadline = time.time() + 120
-    while time.time() < deadline and proc.poll() is None:  # kill once the second entry is checkpointed
-        if manifest.exists() and json.loads(manifest.read_text())["index"] >= 1:
-            break
-        time.sleep(0.05)
-    assert proc.poll() is None, "the study finished before it could be killed"
-    proc.send_signal(signal.SIGKILL)
-    proc.wait()
-    assert not (out / "results.json").exists()
-    resumed = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True)
-    assert resumed.returncode == 0, resumed.stderr[-2000:]
-    got = json.loads((out / "results.json").read_text())
+    got = kill_then_resume(cmd, out, "Town1", index=1)  # once the second entry is checkpointed
     for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
         assert it_got["towns"]["Town1"] == json.loads(json.dumps(it_ref["towns"]["Town1"]))
 
