@@ -23,6 +23,7 @@ Writes ``OUT/premise_bound.json`` and ``OUT/premise_bound.md``; refuses an exist
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -63,8 +64,9 @@ def p_late(driver: Driver, lead_s: float, before: float, step: float = 1.0, n: i
     return float(np.mean(shares))
 
 
-def lateness(speed: float = 10.0) -> list[dict]:
-    """Per online round: leads and late shares of explore and the oracle at ``speed`` m/s."""
+def lateness(speed: float = 10.0, extra: dict[str, float] | None = None) -> list[dict]:
+    """Per online round: leads and late shares of explore and the oracle at ``speed`` m/s. ``extra``: seconds
+    added to a named driver's decision time in every context (a what-if, e.g. ``{"user1": 0.5}``)."""
     ex = explore_policy()
     rows = []
     for e in paper_schedule():
@@ -72,6 +74,8 @@ def lateness(speed: float = 10.0) -> list[dict]:
             continue
         c = e.context()
         d = resolve(e.profile(), c)
+        if extra and e.driver in extra:
+            d = dataclasses.replace(d, decision_time=d.decision_time + extra[e.driver])
         orc = PromptPolicy(d)
         commit = max(d.decision_time, 4.0 / speed)  # the driver chooses its branch this long before the line
         row = {"round": e.label, "driver": e.driver, "vehicle": c.vehicle, "camera": c.camera, "visual": c.visual,
@@ -217,8 +221,10 @@ def report(rows: list[dict], b: dict | None, speed: float, probe: list[dict] | N
                      f"{r['oracle_lead_s']:.2f} | {r['explore_late_commit']:.1%} | {r['oracle_late_commit']:.1%} | "
                      f"{r['explore_late_line']:.1%} |")
     n = sum(5 if r["towns"] == "all" else len(r["towns"]) for r in rows)
+    what_if = {x: late_cells(lateness(speed, {"user1": x})) for x in (0.2, 0.4, 0.5, 1.0)}
     lines += ["", f"Cells (town, round) where explore is late for the commit in at least 5 % more prompts than "
-              f"the oracle: **{late_cells(rows)} of {n}**."]
+              f"the oracle: **{late_cells(rows)} of {n}**. If user1 needed more time before its commit in every "
+              "context: " + ", ".join(f"+{x:g} s: {c}" for x, c in what_if.items()) + "."]
     if b is not None:
         lines += ["", "## Upper bounds from the measured episodes", "",
                   f"Paired cost of one missed turn (explore − oracle, fitted): {b['cost_per_missed_turn']:.0f}.", "",

@@ -183,3 +183,8 @@ def test_premise_bound_lateness_and_bounds(tmp_path, capsys):
     assert mod.main([str(tmp_path / "pb2"), "--calibration", str(tmp_path / "missing.json")]) == 2
     assert not (tmp_path / "pb2").exists()
     assert "is not a file" in capsys.readouterr().err
+
+
+def test_premise_bound_what_if_a_slower_user1_makes_more_cells_late():
+    mod = _premise_bound()
+    assert mod.late_cells(mod.lateness(10.0, {"user1": 1.0})) > mod.late_cells(mod.lateness(10.0)) == 24
