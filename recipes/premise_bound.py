@@ -119,7 +119,14 @@ def split(episodes: list[dict], rows: list[dict], excess: float = 0.05, routes: 
             idx = [i for i, k in enumerate(keys) if k[:2] == cell]
             cheaper += get["oracle"]["tracking_cost"][idx].mean() <= 0.9 * get["explore"]["tracking_cost"][idx].mean()
         ec, oc = get["explore"]["collisions"], get["oracle"]["collisions"]
-        out[name] = {"cells": len(cells), "episodes": len(keys),
+        per_town = {}
+        for town in sorted({k[0] for k in keys}):
+            idx = [i for i, k in enumerate(keys) if k[0] == town]
+            per_town[town] = {"explore_collisions_per_route_set": float(ec[idx].mean() * routes),
+                              "oracle_collisions_per_route_set": float(oc[idx].mean() * routes),
+                              "tracking_diff_ci": paired_difference(get["explore"]["tracking_cost"][idx],
+                                                                    get["oracle"]["tracking_cost"][idx])}
+        out[name] = {"cells": len(cells), "episodes": len(keys), "per_town": per_town,
                      "explore_collisions_per_route_set": float(ec.mean() * routes),
                      "oracle_collisions_per_route_set": float(oc.mean() * routes),
                      "oracle_over_explore": float(oc.sum() / max(ec.sum(), 1e-9)),
@@ -247,6 +254,15 @@ def report(rows: list[dict], b: dict | None, speed: float, probe: list[dict] | N
                          f"{v['oracle_collisions_per_route_set']:.2f} | {v['oracle_over_explore']:.0%} | "
                          f"{c['mean']:+.3f} [{c['low']:+.3f}, {c['high']:+.3f}] | {t['mean']:+.1f} [{t['low']:+.1f}, "
                          f"{t['high']:+.1f}] | {v['cells_oracle_10pct_cheaper']} of {v['cells']} |")
+        for name, v in parts.items():
+            towns = []
+            for town, x in v["per_town"].items():
+                t = x["tracking_diff_ci"]
+                towns.append(f"{town} {x['explore_collisions_per_route_set']:.2f} / "
+                             f"{x['oracle_collisions_per_route_set']:.2f}, "
+                             f"{t['mean']:+.0f} [{t['low']:+.0f}, {t['high']:+.0f}]")
+            lines += ["", f"Per town, explore {name} (collisions per route set explore / oracle; explore − oracle "
+                      "tracking [95 % CI]): " + "; ".join(towns) + "."]
     if probe:
         d = np.array([p["to_line"] for p in probe])
         v = np.array([p["speed"] for p in probe])
