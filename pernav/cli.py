@@ -22,7 +22,7 @@ import sys
 from pathlib import Path
 
 from pernav.planner.factory import parse_planner_options
-from pernav.study.config import COLLECT, METHODS
+from pernav.study.config import COLLECT, LEARNERS, METHODS
 from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.layout import PLAYBACK
@@ -105,12 +105,19 @@ def _check_drive_args(args: argparse.Namespace) -> dict[str, str]:
     return context
 
 
+def _check_learner(learner: str) -> str:
+    if learner not in LEARNERS:
+        raise UsageError(f"--learner {learner!r}: choose one of {', '.join(LEARNERS)}")
+    return learner
+
+
 def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
     """``--policy study``: the study's model adapted on ``--tau`` (unadapted without); None for other policies."""
     if args.policy != "study":
-        if args.study is not None or args.tau is not None:
-            raise UsageError("--study and --tau go with --policy study")
+        if args.study is not None or args.tau is not None or args.learner is not None:
+            raise UsageError("--study, --tau and --learner go with --policy study")
         return None
+    learner = _check_learner(args.learner or "adapt")
     if args.study is None:
         raise UsageError("--policy study needs --study DIR (a finished pernav study)")
     if args.playback != "normal":
@@ -124,7 +131,7 @@ def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
         tau = None if args.tau is None else load_drive(args.tau)
     except (ValueError, RuntimeError, EOFError, pickle.UnpicklingError):
         raise UsageError(f"--tau {args.tau!r} is not a drive recorded by pernav play") from None
-    return study_policy(args.study, args.town, tau, seed=args.seed)
+    return study_policy(args.study, args.town, tau, learner=learner, seed=args.seed)
 
 
 def _play(args: argparse.Namespace) -> None:
@@ -185,6 +192,7 @@ def _personalize(args: argparse.Namespace) -> None:
     context = _check_drive_args(args)
     if args.updates is not None and args.updates < 0:
         raise UsageError(f"--updates must be >= 0, got {args.updates}")
+    _check_learner(args.learner)
     import time
 
     from pernav.play.controls import JoystickControls, KeyboardControls
@@ -201,7 +209,8 @@ def _personalize(args: argparse.Namespace) -> None:
 
     session = PersonalSession(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
                               record_dir=record, n_traffic=args.traffic, updates=args.updates,
-                              window=not args.headless, announce=print, ready=None if args.headless else ready)
+                              learner=args.learner, window=not args.headless, announce=print,
+                              ready=None if args.headless else ready)
     if not args.headless:
         session.controls = JoystickControls() if args.input == "joystick" else KeyboardControls  # made per window
     session.speaker = make_speaker(args.audio)
@@ -273,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--study", metavar="DIR", help="with --policy study: the finished study (pernav study --out DIR)")
     p.add_argument("--tau", metavar="FILE", help="with --policy study: a recorded explore drive (.pt) of the person "
                    "to adapt the model on (default: unadapted)")
+    p.add_argument("--learner", help="with --policy study: the study's learner whose model plans: adapt (default), "
+                   "adapt_speed (chooses the playback speed too) or sysid")
     p.add_argument("--playback", default="normal", help="speed of the spoken prompts: slower, normal, faster")
     p.add_argument("--history", type=int, metavar="K", help="steps of the recorded history window (default 5; the "
                    "K of the study that will learn from the drive: the default preset's is 10; with --policy study: "
@@ -293,6 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "driven twice (at least two routes)")
     p.add_argument("--updates", type=int, metavar="N", help="meta updates after each round (default: the study's, "
                    "at most 10)")
+    p.add_argument("--learner", default="adapt", help="the study's learner to personalize: adapt (default), "
+                   "adapt_speed (chooses the playback speed too) or sysid (not adapted to you: a control)")
     _drive_options(p, "the session's folder: every drive, summary.json/.md and the personalized model "
                    "(default drives/personal-TOWN-TIME)")
     p.set_defaults(func=_personalize)

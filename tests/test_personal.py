@@ -27,11 +27,12 @@ K = 3  # nor is this history window
 
 @pytest.fixture(scope="module")
 def study_dir(tmp_path_factory):
-    """A finished study in seconds: smoke's model, one offline and one online round, adapt alone, U on tau."""
+    """A finished study in seconds: smoke's model, one offline and one online round, adapt and adapt_speed, U on
+    tau."""
     from pernav.study import preset, run_study
 
     cfg = preset("smoke")
-    cfg.methods, cfg.schedule, cfg.calibration = ["adapt"], cfg.schedule[:2], 0
+    cfg.methods, cfg.schedule, cfg.calibration = ["adapt", "adapt_speed"], cfg.schedule[:2], 0
     cfg.train.personal_updates, cfg.train.K, cfg.train.warm_updates = 0, K, 10
     cfg.planner = dict(PLANNER)
     out = tmp_path_factory.mktemp("study")
@@ -181,6 +182,8 @@ def test_bad_study_folders(study_dir, tmp_path):
     ["--study", "{study}", "--town", "Town9", "--routes", "0", "1"],
     ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--updates", "-1"],
     ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--seed", "-1"],
+    ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--learner", "hindsight"],
+    ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--learner", "sysid"],  # not in the study
 ])
 def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
     rec = tmp_path / "rec"
@@ -197,6 +200,8 @@ def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, t
     ["--policy", "study", "--study", "{study}", "--tau", "{missing}"],
     ["--policy", "study", "--study", "{study}", "--tau", "{study}/study.json"],
     ["--policy", "study", "--study", "{study}", "--playback", "slower"],
+    ["--learner", "adapt"],  # --learner goes with --policy study
+    ["--policy", "study", "--study", "{study}", "--learner", "nope"],
 ])
 def test_cli_play_study_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
     rec = tmp_path / "rec"
@@ -221,6 +226,29 @@ def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, ca
     out = json.loads(capsys.readouterr().out)
     assert out["policy"] == "study" and out["study"]["adapted"] and out["study"]["K"] == K
     assert load_drive(out["record"]).shape[0] == out["steps"]
+
+
+def test_adapt_speed_chooses_playback_and_learns_in_its_action_space(study_dir, tmp_path, capsys):
+    s = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=tmp_path / "me", n_traffic=1, updates=1,
+                        learner="adapt_speed", progress=False)
+    result = s.run()
+    assert not result.interrupted and result.summary["learner"] == "adapt_speed"
+    drives = {d["policy"]: load_drive(d["file"]) for d in result.drives[1:]}
+    state = drives["explore"]["observation"].shape[-1]
+    assert drives["adapted"]["history"].shape[-1] == state + 21  # the adapted drive chose instruction and speed
+    assert drives["explore"]["history"].shape[-1] == state + 7  # explore's drive spoke as explore does
+    data, tau = s.buffers.data(1), s.buffers.tau(1)  # the round's data in the learner's 21-action space
+    assert data["history"].shape[-1] == state + 21 and data.shape[0] == sum(d.shape[0] for d in drives.values())
+    assert ((data["action"] >= 0) & (data["action"] < 21)).all()
+    assert torch.equal(tau["action"].reshape(-1), drives["explore"]["action"].long().reshape(-1) * 3 + 1)
+    assert s.policy.env_config["adaptive_speed"] and s.policy.n_actions == 21
+    out = tmp_path / "play"
+    assert main(["play", "--policy", "study", "--study", str(study_dir), "--learner", "adapt_speed", "--route", "2",
+                 "--tau", str(result.drives[0]["file"]), "--headless", "--no-audio", "--traffic", "1",
+                 "--record", str(out), "--json"]) == 0
+    shown = json.loads(capsys.readouterr().out)
+    assert shown["study"]["learner"] == "adapt_speed" and shown["study"]["env_config"]["adaptive_speed"]
+    assert load_drive(shown["record"])["history"].shape[-1] == state + 21
 
 
 def test_docstring_examples():

@@ -345,9 +345,6 @@ class PersonalSession:
                 raise PlayError(f"record folder {str(self.record_dir)!r} already holds a personalization session; "
                                 "choose another")
         self.study = load_study(study_dir, town, learner)
-        if self.study.n_actions != 7:
-            raise PlayError(f"a personalization session compares 7-action policies; {learner!r} has "
-                            f"{self.study.n_actions} actions")
         self.town, self.routes, self.seed = town, routes, int(seed)
         self.user, self.context, self.n_traffic = user, context, int(n_traffic)
         self.controls, self.window, self.speaker = controls, window, speaker
@@ -390,7 +387,8 @@ class PersonalSession:
         session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
                               seed=derive_seed(self.seed, self.town, "drive", round_), n_traffic=self.n_traffic,
                               window=self.window, speaker=self.speaker, K=self.study.K,
-                              env_config=self.study.env_config(7))
+                              # adapt_speed's drives choose the playback speed too (21 actions); explore's do not
+                              env_config=self.study.env_config(None if policy_name == "adapted" else 7))
         try:
             session.controls = self._controls()
             result = session.run()
@@ -418,9 +416,10 @@ class PersonalSession:
         from tqdm.auto import tqdm
 
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # no note of every round's new storage
-        self.buffers.add(round_, tau, tau=True)
+        # a round's data in the learner's action space (explore's 7 actions re-encoded for adapt_speed's 21)
+        self.buffers.add(round_, _in_model_space(tau, self.study.n_actions), tau=True)
         if other is not None:
-            self.buffers.add(round_, other)
+            self.buffers.add(round_, _in_model_space(other, self.study.n_actions))
         for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
             self.meta_losses.extend(self.trainer.train(1, meta=True))
         self.params = adapted_parameters(self.study, self.trainer, [tau],
