@@ -251,6 +251,23 @@ def test_adapt_speed_chooses_playback_and_learns_in_its_action_space(study_dir, 
     assert load_drive(shown["record"])["history"].shape[-1] == state + 21
 
 
+def test_a_sysid_session_trains_plainly_and_plans_unadapted(tmp_path, monkeypatch):
+    from pernav.study import preset, run_study
+
+    cfg = preset("smoke")
+    cfg.methods, cfg.schedule, cfg.calibration, cfg.train.warm_updates = ["sysid"], cfg.schedule[:2], 0, 10
+    run_study(cfg, tmp_path / "study", report=False)
+    s = PersonalSession(tmp_path / "study", "Town1", [0, 1], n_traffic=0, updates=2, learner="sysid", progress=False)
+    flags: list[bool] = []
+    train = s.trainer.train
+    monkeypatch.setattr(s.trainer, "train", lambda n, meta: flags.append(meta) or train(n, meta=meta))
+    assert not s.run().interrupted
+    assert flags == [False] * 4  # two plain updates after each of the two rounds, as the study trains sysid
+    for member, params in zip(s.trainer.members, s.params, strict=True):  # planned with the model itself
+        meta = meta_parameters(member.model).detach()
+        assert all(torch.equal(meta[k], params[k]) for k in meta.keys(True, True))
+
+
 def test_docstring_examples():
     import doctest
 

@@ -421,7 +421,7 @@ class PersonalSession:
         if other is not None:
             self.buffers.add(round_, _in_model_space(other, self.study.n_actions))
         for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
-            self.meta_losses.extend(self.trainer.train(1, meta=True))
+            self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
         self.params = adapted_parameters(self.study, self.trainer, [tau],
                                          derive_seed(self.seed, self.town, "personal", round_))
         self.policy.set_parameters(self.params, tau)
