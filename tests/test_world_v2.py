@@ -188,3 +188,10 @@ def test_premise_bound_lateness_and_bounds(tmp_path, capsys):
 def test_premise_bound_what_if_a_slower_user1_makes_more_cells_late():
     mod = _premise_bound()
     assert mod.late_cells(mod.lateness(10.0, {"user1": 1.0})) > mod.late_cells(mod.lateness(10.0)) == 24
+
+
+def test_premise_bound_population_shares_are_consistent():
+    mod = _premise_bound()
+    pop = mod.population_lateness(20)
+    assert pop["drivers"] == 20 and 0.0 <= pop["late_20pct"] <= pop["late_5pct"] <= 1.0
+    assert 0.0 < pop["late_5pct"] < 1.0  # the prior holds drivers explore serves late and drivers it serves on time
