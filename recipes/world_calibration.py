@@ -7,7 +7,7 @@ issue's targets, each marked met or not).
 
 Usage:
     .venv/bin/python recipes/world_calibration.py OUT [--seeds 0 1 2] [--routes 10] [--towns ...]
-        [--n-traffic N] [--workers 2]
+        [--n-traffic N] [--workers 2] [--population | --average]
 
 Episode seed of route r in round i with seed s: ``10000 * s + 100 * i + r``.
 
@@ -33,7 +33,7 @@ from pernav.env.episodes import run_episode
 from pernav.env.navigation import NavigationEnv
 from pernav.study.config import preset
 from pernav.study.schedule import paper_schedule
-from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE
+from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, population_samples
 from pernav.world.towns import TOWN_NAMES
 
 POLICIES = ("explore", "oracle")
@@ -60,13 +60,20 @@ def _drive(task: tuple) -> list[dict]:
 
 
 def tasks(towns: list[str], routes: int, seeds: list[int], n_traffic: int, rounds: int | None,
-          average: bool) -> list[tuple]:
-    """The episodes of the calibration: online rounds of the paper schedule (or the average driver)."""
+          average: bool, population: bool = False) -> list[tuple]:
+    """The episodes of the calibration: online rounds of the paper schedule (or the average driver). With
+    ``population`` the k-th online round's driver and context are the k-th draw of the population prior
+    (``population_samples``, its fixed seed) instead of the schedule's, in the same towns."""
     if average:
         entries = [("average", POPULATION_AVERAGE.to_dict(), AVERAGE_CONTEXT.to_dict())]
     else:
-        entries = [(e.label, e.profile().to_dict(), e.context().to_dict(), e.towns)
-                   for e in paper_schedule() if e.phase == "online"]
+        online = [e for e in paper_schedule() if e.phase == "online"]
+        if population:
+            draws = population_samples(len(online))
+            entries = [(f"Population {k}", p.to_dict(), c.to_dict(), e.towns)
+                       for k, (e, (p, c)) in enumerate(zip(online, draws, strict=True))]
+        else:
+            entries = [(e.label, e.profile().to_dict(), e.context().to_dict(), e.towns) for e in online]
     out = []
     for town in towns:
         i = 0
@@ -186,14 +193,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n-traffic", type=int, default=preset("paper").n_traffic)
     parser.add_argument("--average", action="store_true",
                         help="the population-average driver in the average context instead of the schedule")
+    parser.add_argument("--population", action="store_true",
+                        help="each online round's driver and context drawn from the population prior instead of the "
+                             "schedule's (exploration of another schedule; not the issue's judging set-up)")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args(argv)
+    if args.population and args.average:
+        print("error: --population and --average exclude each other", file=sys.stderr)
+        return 2
     out = Path(args.out)
     if (out / "calibration.json").exists():
         print(f"error: {out / 'calibration.json'} exists; choose another OUT", file=sys.stderr)
         return 2
     out.mkdir(parents=True, exist_ok=True)
-    work = tasks(args.towns, args.routes, args.seeds, args.n_traffic, args.rounds, args.average)
+    work = tasks(args.towns, args.routes, args.seeds, args.n_traffic, args.rounds, args.average, args.population)
     t0 = time.time()
     episodes: list[dict] = []
     if args.workers > 1:
