@@ -195,3 +195,22 @@ def test_premise_bound_population_shares_are_consistent():
     pop = mod.population_lateness(20)
     assert pop["drivers"] == 20 and 0.0 <= pop["late_20pct"] <= pop["late_5pct"] <= 1.0
     assert 0.0 < pop["late_5pct"] < 1.0  # the prior holds drivers explore serves late and drivers it serves on time
+
+
+def test_calibration_population_rounds_replace_the_drivers_not_the_schedule(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location("world_calibration", ROOT / "recipes" / "world_calibration.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    from pernav.world.drivers import population_samples
+
+    towns = ["Town1", "Town4"]
+    paper = mod.tasks(towns, 1, [0], 8, None, average=False)
+    pop = mod.tasks(towns, 1, [0], 8, None, average=False, population=True)
+    # the same (town, round, route, seed) cells, so the same episode seeds; only who drives differs
+    assert [(t[0], t[1], t[5], t[6]) for t in pop] == [(t[0], t[1], t[5], t[6]) for t in paper]
+    assert len([t for t in pop if t[0] == "Town4"]) == 9 and len([t for t in pop if t[0] == "Town1"]) == 15
+    first = population_samples(1)[0]
+    assert pop[0][2] == "Population 0" and pop[0][3] == first[0].to_dict() and pop[0][4] == first[1].to_dict()
+    out = tmp_path / "cal"
+    assert mod.main([str(out), "--population", "--average"]) == 2 and not out.exists()
+    assert "exclude each other" in capsys.readouterr().err
