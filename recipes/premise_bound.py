@@ -114,18 +114,24 @@ def late_cells(rows: list[dict], excess: float = 0.05, n_towns: int = 5) -> int:
                for r in rows if r["explore_late_commit"] - r["oracle_late_commit"] >= excess)
 
 
+def _paired(episodes: list[dict]) -> dict[tuple, dict]:
+    """``{(town, round label, seed, route): {"explore": episode, "oracle": episode}}`` where both drove it."""
+    pairs: dict[tuple, dict] = {}
+    for x in episodes:
+        pairs.setdefault((x["town"], x["label"], x["seed"], x["route"]), {})[x["policy"]] = x
+    return {k: v for k, v in pairs.items() if {"explore", "oracle"} <= set(v)}
+
+
 def split(episodes: list[dict], rows: list[dict], excess: float = 0.05, routes: int = 10) -> dict:
     """Explore vs the oracle (paired) in the cells where explore is late (as :func:`late_cells` counts them) and
     in the others: collisions per route set, their ratio and paired CI, tracking's paired CI, cells 10 % cheaper."""
     from pernav.diagnostics.stats import paired_difference
 
     late = {r["round"] for r in rows if r["explore_late_commit"] - r["oracle_late_commit"] >= excess}
-    pairs: dict[tuple, dict] = {}
-    for x in episodes:
-        pairs.setdefault((x["town"], x["label"], x["seed"], x["route"]), {})[x["policy"]] = x
+    pairs = _paired(episodes)
     out = {}
     for name, want in (("late", True), ("on time", False)):
-        keys = [k for k, v in pairs.items() if (k[1] in late) == want and {"explore", "oracle"} <= set(v)]
+        keys = [k for k in pairs if (k[1] in late) == want]
         if not keys:
             continue
         get = {p: {f: np.array([pairs[k][p][f] for k in keys]) for f in ("collisions", "tracking_cost")}
@@ -156,10 +162,8 @@ def split(episodes: list[dict], rows: list[dict], excess: float = 0.05, routes: 
 def bounds(episodes: list[dict], routes: int = 10) -> dict:
     """Targets 1-3 from the episodes as they are, and with every swerve also a collision (and a missed
     turn at the fitted paired cost of one)."""
-    pairs: dict[tuple, dict] = {}
-    for x in episodes:
-        pairs.setdefault((x["town"], x["round"], x["seed"], x["route"]), {})[x["policy"]] = x
-    keys = [k for k, v in pairs.items() if {"explore", "oracle"} <= set(v)]
+    pairs = _paired(episodes)
+    keys = list(pairs)
     dc = np.array([pairs[k]["explore"]["tracking_cost"] - pairs[k]["oracle"]["tracking_cost"] for k in keys])
     dm = np.array([pairs[k]["explore"]["missed_turns"] - pairs[k]["oracle"]["missed_turns"] for k in keys])
     per_miss = float((dc * dm).sum() / max((dm * dm).sum(), 1e-9))  # least squares through the origin
