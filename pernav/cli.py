@@ -317,7 +317,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_bench)
 
     p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
-    p.add_argument("--preset", default="default", help="smoke | default | paper")
+    p.add_argument("--preset", default="default", help="smoke | default | paper | personal | personal_paper")
     p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
     p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
     p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")

@@ -25,43 +25,19 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from pernav.env.policies import PromptPolicy, explore_policy
+from pernav.env.policies import late_share as p_late  # one home: the analytic lateness
 from pernav.study.schedule import paper_schedule
-from pernav.world.drivers import Driver, resolve
+from pernav.world.drivers import resolve
 from pernav.world.layout import audio_duration
 
 TURN = 1  # "turn left": audio durations of the two turns are equal
 CALIBRATION = "docs/figures/world_v2/judged/calibration.json"
-
-
-def p_late(driver: Driver, lead_s: float, before: float, step: float = 1.0, n: int = 101) -> float:
-    """Share of prompts said ``lead_s`` (+ up to one ``step``) seconds before the stop line that become
-    active less than ``before`` seconds before it: ``audio + reaction > lead - before``.
-
-    >>> from pernav.world.drivers import DriverProfile, Context
-    >>> d = resolve(DriverProfile(), Context())
-    >>> p_late(d, 20.0, 0.0) < 1e-6 < p_late(d, 3.0, 0.0)
-    True
-    """
-    sigma = math.sqrt(math.log1p((driver.reaction_sd / driver.reaction_time) ** 2))
-    mu = math.log(driver.reaction_time) - sigma**2 / 2
-    cap = 3.0 * driver.reaction_time
-    shares = []
-    for u in np.linspace(0.0, step, n):  # where within the step the lead ran out: uniform
-        x = lead_s + u - before - audio_duration(TURN)  # the reaction time that just makes it
-        if x <= 0:
-            shares.append(1.0)
-        elif x >= cap:
-            shares.append(0.0)
-        else:
-            shares.append(0.5 * math.erfc((math.log(x) - mu) / (sigma * math.sqrt(2))))
-    return float(np.mean(shares))
 
 
 def lateness(speed: float = 10.0, extra: dict[str, float] | None = None) -> list[dict]:

@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
-from pernav.env.policies import NavView, PromptPolicy, explore_policy, oracle_policy
+from pernav.env.policies import NavView, PromptPolicy, belief_policy, explore_policy, oracle_policy
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -60,6 +60,10 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "plan_shift": 2,  # explore-plan time shifts the planner may match (steps each way)
     "future_steps": 18,  # steps of the explore policy's future plan in info (the re-timing planner's input)
     "route_points": 96,  # points of the planned route ahead in info (every 3 m from 15 m behind the car)
+    # what the navigation believes of its user (a mapping of Driver fields over the average driver's, e.g. a
+    # learner's estimate of its reaction and decision times): info then carries "belief_action", the explore
+    # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. None: off
+    "belief": None,
 }
 
 
@@ -194,6 +198,7 @@ class NavigationEnv(gym.Env):
             self.context = ctx if isinstance(ctx, Context) else Context(**ctx)
         self.driver = resolve(self.profile, self.context)
         self._oracle = oracle_policy(self.driver)
+        self._belief = None if self.config["belief"] is None else belief_policy(self.config["belief"])
         self.route = custom or self.town.routes[self.route_index]
         self.goal_lane, self.goal_s = self.route.lanes[-1], self.route.end_s
         world_seed = int(self.np_random.integers(2**31 - 1))
@@ -268,7 +273,8 @@ class NavigationEnv(gym.Env):
             raise RuntimeError("call reset() before branch()")
         memo = self.world.shared()
         memo.update({id(self.route): self.route, id(self.driver): self.driver, id(self.profile): self.profile,
-                     id(self._explore): self._explore, id(self._oracle): self._oracle})
+                     id(self._explore): self._explore, id(self._oracle): self._oracle,
+                     id(self._belief): self._belief})
         # the viewer, the observers and a person's controls stay with this env: the copy is drawn by no one and
         # driven by the simulated driver (a planner's branch imagines the driver it models)
         detached = (self._viewer, self.on_prompt, self.on_frame, self.world.ego.external)
@@ -363,6 +369,8 @@ class NavigationEnv(gym.Env):
             "explore_action": self.explore_action(),
             "oracle_action": self.oracle_action(),
         }
+        if self._belief is not None:
+            info["belief_action"] = self.policy_action(self._belief)
         info.update(self.junction_info())
         info.update(self.planning_info(info["in_roundabout"]))
         return info

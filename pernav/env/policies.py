@@ -16,7 +16,11 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
 from pernav.world.layout import audio_duration
@@ -144,6 +148,10 @@ class PromptPolicy:
         return desired
 
 
+#: the driver fields the prompt rules read (what a belief about a user may set)
+BELIEF_FIELDS = ("reaction_time", "decision_time", "turn_speed", "comfort_decel", "memory")
+
+
 def explore_policy() -> PromptPolicy:
     """π^e: prompts timed for the population-average driver in the average context."""
     return PromptPolicy(resolve(POPULATION_AVERAGE, AVERAGE_CONTEXT))
@@ -152,3 +160,62 @@ def explore_policy() -> PromptPolicy:
 def oracle_policy(driver: Driver) -> PromptPolicy:
     """The same rules re-timed with the true user's profile and context."""
     return PromptPolicy(driver)
+
+
+def belief_policy(belief: dict[str, float]) -> PromptPolicy:
+    """The same rules re-timed for what the navigation believes of its user: ``belief`` holds effective
+    :class:`~pernav.world.drivers.Driver` fields (e.g. ``reaction_time``, ``decision_time``) that replace the
+    average driver's; an empty belief is explore.
+
+    >>> belief_policy({}).turn_lead(10.0) == explore_policy().turn_lead(10.0)
+    True
+    >>> belief_policy({"reaction_time": 2.5}).turn_lead(10.0) > explore_policy().turn_lead(10.0)
+    True
+    """
+    average = explore_policy().driver
+    unknown = sorted(set(belief) - set(BELIEF_FIELDS))
+    if unknown:
+        raise ValueError(f"unknown belief field {unknown[0]!r}; allowed: {', '.join(BELIEF_FIELDS)}")
+    return PromptPolicy(dataclasses.replace(average, **{k: float(v) for k, v in belief.items()}))
+
+
+def late_share(driver: Driver, lead_s: float, before: float, step: float = 1.0, n: int = 101) -> float:
+    """Share of "turn" prompts said ``lead_s`` (+ up to one ``step``) seconds before the stop line that become
+    active less than ``before`` seconds before it (``audio + reaction > lead - before``), from the driver's
+    per-prompt reaction time (lognormal, :meth:`~pernav.world.drivers.Driver.reaction_draw`). Analytic: no
+    simulation.
+
+    >>> d = resolve(POPULATION_AVERAGE, AVERAGE_CONTEXT)
+    >>> late_share(d, 20.0, 0.0) < 1e-6 < late_share(d, 3.0, 0.0)
+    True
+    """
+    sigma = math.sqrt(math.log1p((driver.reaction_sd / driver.reaction_time) ** 2))
+    mu = math.log(driver.reaction_time) - sigma**2 / 2
+    cap = 3.0 * driver.reaction_time
+    shares = []
+    for u in np.linspace(0.0, step, n):  # where within the step the lead ran out: uniform
+        x = lead_s + u - before - audio_duration(TURN["left"])  # the reaction time that just makes it
+        if x <= 0:
+            shares.append(1.0)
+        elif x >= cap:
+            shares.append(0.0)
+        else:
+            shares.append(0.5 * math.erfc((math.log(x) - mu) / (sigma * math.sqrt(2))))
+    return float(np.mean(shares))
+
+
+def lateness(driver: Driver, speed: float = 10.0) -> dict[str, float]:
+    """How often explore's and the oracle's "turn" prompts reach ``driver`` after its commit point at ``speed``
+    m/s (the driver chooses its branch ``max(decision_time, 4 m / speed)`` before the line), and the excess of
+    explore's share over the oracle's: where personal timing has late prompts to fix.
+
+    >>> from pernav.world.drivers import Context, named_user
+    >>> round(lateness(resolve(named_user("user3"), Context()))["excess"], 2)
+    0.8
+    """
+    commit = max(driver.decision_time, 4.0 / speed)
+    out = {}
+    for name, policy in (("explore", explore_policy()), ("oracle", oracle_policy(driver))):
+        out[name] = late_share(driver, policy.turn_lead(speed) / speed, commit)
+    out["excess"] = out["explore"] - out["oracle"]
+    return out

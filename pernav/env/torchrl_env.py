@@ -135,7 +135,8 @@ def make_torchrl_env(town: str = "Town1", config: dict[str, Any] | None = None,
     """
     nav = NavigationEnv(town=town, config=config)
     env = NavigationTorchRLEnv(nav, reset_options=options, device=device)
-    env.set_info_dict_reader(NavigationInfoReader(arrays=planning_arrays(nav.config, nav.n_actions)))
+    dtypes = {**INFO_DTYPES, "belief_action": torch.int64} if nav.config["belief"] is not None else None
+    env.set_info_dict_reader(NavigationInfoReader(dtypes, arrays=planning_arrays(nav.config, nav.n_actions)))
     if seed is not None:
         env.set_seed(seed)
     return env

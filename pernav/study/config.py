@@ -1,4 +1,4 @@
-"""Study configuration and presets (``smoke``, ``default``, ``paper``).
+"""Study configuration and presets (``smoke``, ``default``, ``paper``, ``personal``, ``personal_paper``).
 
 Example:
     >>> cfg = preset("smoke")
@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from pernav.study.headroom import personal_schedule
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
@@ -132,12 +133,25 @@ def _default() -> StudyConfig:
         collect="retimed")
 
 
+def _personal(paper_sized: bool = False) -> StudyConfig:
+    # the headroom benchmark (pernav.study.headroom, docs/personal.md): sixteen online rounds across the spectrum
+    # of drivers, ten of them outside explore's slack; the default preset's learning options
+    cfg = _default()
+    cfg.preset = "personal_paper" if paper_sized else "personal"
+    cfg.schedule = personal_schedule()
+    cfg.routes = 10 if paper_sized else 4
+    cfg.towns = list(TOWN_NAMES) if paper_sized else ["Town1", "Town3"]
+    cfg.methods = ["explore", "sysid", "adapt", "oracle"]
+    return cfg
+
+
 def _paper() -> StudyConfig:
     return StudyConfig(preset="paper", towns=list(TOWN_NAMES), schedule=paper_schedule(), routes=10, rollouts=4,
                        offline_trajectories=4, n_traffic=8)
 
 
-PRESETS = {"smoke": _smoke, "default": _default, "paper": _paper}
+PRESETS = {"smoke": _smoke, "default": _default, "paper": _paper, "personal": _personal,
+           "personal_paper": lambda: _personal(paper_sized=True)}
 
 
 def preset(name: str) -> StudyConfig:

@@ -1,0 +1,91 @@
+"""The headroom benchmark: drivers across the spectrum, each (town, round) cell classified *late* or *on time*
+before any learner runs (docs/personal.md).
+
+Explore's prompts are timed for the average driver with 0.8 s of slack; personal timing pays only for drivers
+outside that slack. The ``personal`` preset's online rounds are named users and population-prior draws, at least
+half of them outside it. A cell is *late* when explore's "turn" prompts reach the driver after its commit point
+in at least :data:`LATE_EXCESS` more of the prompts than the oracle's, from the driver's resolved profile alone
+(:func:`pernav.env.policies.lateness`: analytic, no simulation, no learner).
+
+Example:
+    >>> cells = classify(personal_schedule(), ["Town1"])
+    >>> sum(c["late"] for c in cells) >= len(cells) / 2
+    True
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pernav.env.policies import lateness
+from pernav.study.schedule import Entry, paper_schedule
+from pernav.world.drivers import Population, resolve
+
+__all__ = ["LATE_EXCESS", "PERSONAL_POPULATION_SEED", "SEEDS", "TARGETS", "classify", "personal_schedule",
+           "preregistration"]
+
+#: a cell is late when explore is late for the commit in at least this share more of the prompts than the oracle
+LATE_EXCESS = 0.05
+#: the seed of the benchmark's population-prior drivers (fixed before any run; not the diagnostics panel's)
+PERSONAL_POPULATION_SEED = 38
+POPULATION_DRAWS = 8
+#: the study seeds that judge a learner on the benchmark
+SEEDS = (0, 1, 2, 3, 4, 5)
+#: what a learner must reach (fixed before any learner ran on the benchmark)
+TARGETS: dict[str, Any] = {
+    "late_gap_closed": {"point": 0.60, "ci_low": 0.30,
+                        "what": "share of explore's tracking cost above the oracle's that the learner removes, late "
+                                "cells pooled over towns and seeds, paired with explore on the same episodes"},
+    "late_gap_closed_per_town": {"point": 0.40, "what": "the same per town, where the oracle's own gain is clear "
+                                                       "of zero (its 95 % CI above 0)"},
+    "on_time_cost_ratio": {"point": 1.03, "ci_high": 1.08,
+                           "what": "learner's tracking cost over explore's on the on-time cells"},
+    "collisions": {"what": "learner's collisions minus explore's over all cells: the 95 % CI includes or lies "
+                           "below zero"},
+    "against_adapt_sysid": {"what": "learner's tracking cost minus adapt's and minus sysid's on the late cells: "
+                                    "95 % CI below zero"},
+    "stretch": {"late_gap_closed": 0.80, "what": "reported either way: above 80 %, or beyond the oracle"},
+}
+_NAMED = [  # (label, user, context): four outside explore's slack, four inside
+    ("user3", "user3", {}),
+    ("user2", "user2", {}),
+    ("user5", "user5", {}),
+    ("user1 truck fog", "user1", {"vehicle": "cybertruck", "visual": "foggy"}),
+    ("user4", "user4", {}),
+    ("user6", "user6", {}),
+    ("user7 wheel", "user7", {"equipment": "wheel"}),
+    ("user1 wheel", "user1", {"equipment": "wheel"}),
+]
+
+
+def personal_schedule() -> list[Entry]:
+    """The ``personal`` preset's schedule: the default study's three offline rounds (user1), then eight named-user
+    rounds and :data:`POPULATION_DRAWS` population-prior rounds (``Population(seed=PERSONAL_POPULATION_SEED)``)."""
+    by_label = {e.label: e for e in paper_schedule()}
+    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+    entries += [Entry(label, "online", user, **context) for label, user, context in _NAMED]
+    pop = Population(seed=PERSONAL_POPULATION_SEED)
+    for i in range(POPULATION_DRAWS):
+        profile, context = pop.sample()
+        entries.append(Entry(f"population {i}", "online", profile.to_dict(), **context.to_dict()))
+    return entries
+
+
+def classify(entries: list[Entry], towns: list[str]) -> list[dict[str, Any]]:
+    """Every online (town, round) cell with explore's and the oracle's late shares and its class, from the
+    round's driver profile and context alone."""
+    cells = []
+    for town in towns:
+        for e in entries:
+            if e.phase != "online" or not e.runs_in(town) or e.drives:
+                continue
+            late = lateness(resolve(e.profile(), e.context()))
+            cells.append({"town": town, "round": e.label, "explore_late": round(late["explore"], 4),
+                          "oracle_late": round(late["oracle"], 4), "late": bool(late["excess"] >= LATE_EXCESS)})
+    return cells
+
+
+def preregistration(towns: list[str]) -> dict[str, Any]:
+    """The benchmark as fixed before any learner runs: cells and classes, seeds, targets (JSON-ready)."""
+    return {"towns": list(towns), "late_excess": LATE_EXCESS, "population_seed": PERSONAL_POPULATION_SEED,
+            "seeds": list(SEEDS), "targets": TARGETS, "cells": classify(personal_schedule(), towns)}
