@@ -331,7 +331,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-option", action="append", default=[], metavar="KEY=VALUE",
                    help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150); "
                         "repeatable")
-    p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: all six)")
+    p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the timing learner's options (offline_drivers, l2, quantile, gate; VALUE a number); "
+                        "repeatable")
+    p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: the preset's)")
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
                         "at random; the default preset's choice)")
@@ -377,6 +380,14 @@ def _study(args: argparse.Namespace) -> None:
         raise UsageError(f"--planner-option {exc}") from None
     if args.methods is not None:
         cfg.methods = [m for m in METHODS if m in args.methods]
+    for pair in args.timing_option:
+        key, _, value = pair.partition("=")
+        if key not in cfg.timing:
+            raise UsageError(f"--timing-option: unknown option {key!r}; allowed: {', '.join(cfg.timing)}")
+        try:
+            cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
+        except ValueError:
+            raise UsageError(f"--timing-option {key}: {value!r} is not a number") from None
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau is not None:

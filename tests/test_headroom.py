@@ -42,3 +42,74 @@ def test_analytic_lateness_agrees_with_sampled_reaction_times() -> None:
         late += audio_duration(1) + driver.reaction_draw(rng.gauss(0.0, 1.0)) > said - commit
     assert math.isclose(late / n, late_share(driver, lead, commit), abs_tol=0.015)
     assert lateness(driver)["excess"] > 0.3 > lateness(resolve(named_user("user4"), Context()))["excess"]
+
+
+# ----- the timing learner ----------------------------------------------------------------------------------------
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+from pernav.env.policies import belief_policy  # noqa: E402
+from pernav.env.torchrl_env import explore_module  # noqa: E402
+from pernav.model.timing import FEATURES, N_FEATURES, TimingModel, timing_features  # noqa: E402
+from pernav.trainer.collect import drive, history_env  # noqa: E402
+from pernav.world.drivers import Population  # noqa: E402
+
+
+def _tau(user, context: Context, route: int, seed: int):
+    env = history_env("Town1", {"route": route, "user": user, "context": context}, config={"n_traffic": 2},
+                      seed=seed, K=2)
+    return drive(env, explore_module())
+
+
+@pytest.fixture(scope="module")
+def fitted() -> TimingModel:
+    """A timing model fitted as the study fits it, on 16 simulated population drivers' explore drives."""
+    population, X, Y = Population(seed=7), [], []
+    for k in range(16):
+        profile, context = population.sample()
+        X.append(timing_features(_tau(profile, context, k % 10, 100 + k)))
+        driver = resolve(profile, context)
+        Y.append(torch.tensor([driver.reaction_time, driver.decision_time]))
+    return TimingModel().fit(torch.stack(X), torch.stack(Y))
+
+
+def test_ridge_recovers_a_linear_relation_and_shrinks_to_the_mean_without_evidence() -> None:
+    g = torch.Generator().manual_seed(0)
+    X = torch.randn(200, N_FEATURES, generator=g)
+    Y = torch.stack([(0.3 * X[:, 0]).exp() * 1.5, (0.0 * X[:, 1]).exp() * 2.0], -1)
+    model = TimingModel(l2=1e-6).fit(X, Y)
+    torch.testing.assert_close(model.predict(X), Y, rtol=1e-4, atol=1e-4)
+    at_mean = TimingModel(l2=1e6).fit(X, Y).predict(torch.zeros(N_FEATURES))
+    torch.testing.assert_close(at_mean, Y.log().mean(0).exp(), rtol=1e-2, atol=1e-2)
+    assert len(FEATURES) == N_FEATURES
+    with pytest.raises(RuntimeError, match="fit the TimingModel"):
+        TimingModel().predict(X)
+
+
+def test_features_read_what_the_navigation_saw_not_the_oracle() -> None:
+    tau = _tau("user3", Context(), 0, 1)
+    before = timing_features(tau)
+    tau["oracle_action"] = torch.full_like(tau["oracle_action"], 3)
+    tau["next", "oracle_action"] = torch.full_like(tau["next", "oracle_action"], 3)
+    assert torch.equal(timing_features(tau), before)
+    assert torch.isfinite(before).all()
+
+
+def test_a_late_answering_driver_is_prompted_earlier_and_one_inside_the_slack_as_explore(fitted) -> None:
+    slow = fitted.belief(_tau("user3", Context(vehicle="cybertruck", visual="foggy"), 1, 3))
+    fast = fitted.belief(_tau("user4", Context(), 1, 3))
+    assert slow and belief_policy(slow).turn_lead(10.0) > explore_policy().turn_lead(10.0) + 3.0
+    assert fast == {}  # the gate: explore's own timing
+
+
+def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path) -> None:
+    from pernav.study import run_study
+
+    cfg = preset("smoke")
+    cfg.methods = ["explore", "timing", "oracle"]
+    results = run_study(cfg, tmp_path / "s", report=False)
+    beliefs = results["diagnostics"]["Town1"]["timing"]["beliefs"]
+    assert set(beliefs) == {"Online 0", "Online 8"}
+    for it in results["iterations"]:
+        if it["phase"] == "online":
+            assert {"explore", "timing", "oracle"} <= set(it["towns"]["Town1"])

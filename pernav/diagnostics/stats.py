@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["bootstrap_ci", "gap_closed", "paired_difference"]
+__all__ = ["bootstrap_ci", "gap_closed", "paired_difference", "paired_ratio"]
 
 
 def bootstrap_ci(values: Sequence[float], level: float = 0.95, resamples: int = 4000,
@@ -60,3 +60,19 @@ def gap_closed(explore: Sequence[float], method: Sequence[float], oracle: Sequen
     r = ratio(e[idx], m[idx], o[idx])
     r = r[~np.isnan(r)]
     return {"mean": point, "low": float(np.quantile(r, 0.025)), "high": float(np.quantile(r, 0.975)), "n": int(e.size)}
+
+
+def paired_ratio(method: Sequence[float], baseline: Sequence[float], resamples: int = 4000,
+                 seed: int = 0) -> dict[str, float]:
+    """Ratio of the means ``mean(method) / mean(baseline)`` with a paired bootstrap CI (episodes resampled together).
+
+    >>> paired_ratio([1.0, 3.0], [2.0, 2.0])["mean"]
+    1.0
+    """
+    m, b = np.asarray(method, dtype=float), np.asarray(baseline, dtype=float)
+    if m.shape != b.shape or m.size == 0:
+        raise ValueError(f"paired episodes needed: {m.shape} method vs {b.shape} baseline values")
+    point = float(m.mean() / b.mean())
+    idx = np.random.default_rng(seed).integers(0, m.size, size=(resamples, m.size))
+    r = m[idx].mean(1) / b[idx].mean(1)
+    return {"mean": point, "low": float(np.quantile(r, 0.025)), "high": float(np.quantile(r, 0.975)), "n": int(m.size)}

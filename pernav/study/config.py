@@ -16,11 +16,14 @@ from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
 
-__all__ = ["COLLECT", "METHODS", "PRESETS", "PresetError", "StudyConfig", "preset"]
+__all__ = ["COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig", "preset"]
 
-METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "oracle")
+METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "oracle")
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
+# the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
+# ridge penalty, the residual SDs its belief adds to the predicted mean, and the gate (s earlier than explore)
+TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0}
 
 
 class PresetError(ValueError):
@@ -38,7 +41,8 @@ class StudyConfig:
     rollouts: int = 4  # K trajectories per online round and learner (MPC w.p. 1/2, else explore)
     offline_trajectories: int = 4  # explore trajectories per offline round
     n_traffic: int = 8
-    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    # the paper's methods and the oracle; the timing learner joins in the presets that run it
+    methods: list[str] = field(default_factory=lambda: [m for m in METHODS if m != "timing"])
     train: TrainConfig = field(default_factory=TrainConfig)
     planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
     # the learners' non-MPC data: "explore" (the paper) or "retimed" (explore with its prompts re-timed at
@@ -52,6 +56,7 @@ class StudyConfig:
     # re-timed drives (RetimedExplore) of each online round's user before its evaluation, beside tau: data of
     # this user's answers to a prompt's timing (train.personal_updates adapts on them; 0: none, the paper)
     calibration: int = 0
+    timing: dict[str, Any] = field(default_factory=lambda: dict(TIMING_DEFAULTS))  # the timing learner's options
     seed: int = 0
 
     def entries_for(self, town: str) -> list[Entry]:
@@ -98,6 +103,11 @@ class StudyConfig:
             phases = [e.phase for e in self.entries_for(town)]
             if "offline" not in phases or "online" not in phases:
                 raise PresetError(f"town {town}: the schedule gives it no offline or no online entry")
+        unknown = sorted(set(self.timing) - set(TIMING_DEFAULTS))
+        if unknown:
+            raise PresetError(f"unknown timing option {unknown[0]!r}; allowed: {', '.join(TIMING_DEFAULTS)}")
+        if int(self.timing["offline_drivers"]) < 2 or self.timing["l2"] < 0 or self.timing["gate"] < 0:
+            raise PresetError(f"timing needs offline_drivers >= 2, l2 >= 0 and gate >= 0; got {self.timing}")
         check_recorded(self.schedule, self.towns, self.train.K)  # recorded drives: their towns and K
 
 
@@ -112,7 +122,8 @@ def _smoke() -> StudyConfig:
         routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
         train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2, ensemble=2,
                           personal_updates=5),
-        planner={"kind": "retime"}, collect="retimed", calibration=1)
+        planner={"kind": "retime"}, collect="retimed", calibration=1, methods=list(METHODS),
+        timing={**TIMING_DEFAULTS, "offline_drivers": 4})
 
 
 def _default() -> StudyConfig:
@@ -141,7 +152,7 @@ def _personal(paper_sized: bool = False) -> StudyConfig:
     cfg.schedule = personal_schedule()
     cfg.routes = 10 if paper_sized else 4
     cfg.towns = list(TOWN_NAMES) if paper_sized else ["Town1", "Town3"]
-    cfg.methods = ["explore", "sysid", "adapt", "oracle"]
+    cfg.methods = ["explore", "sysid", "adapt", "timing", "oracle"]
     return cfg
 
 

@@ -89,3 +89,74 @@ def preregistration(towns: list[str]) -> dict[str, Any]:
     """The benchmark as fixed before any learner runs: cells and classes, seeds, targets (JSON-ready)."""
     return {"towns": list(towns), "late_excess": LATE_EXCESS, "population_seed": PERSONAL_POPULATION_SEED,
             "seeds": list(SEEDS), "targets": TARGETS, "cells": classify(personal_schedule(), towns)}
+
+
+def episodes(results: list[dict[str, Any]]) -> dict[tuple, dict[str, dict[str, Any]]]:
+    """``{(seed, town, round, route): {method: episode}}`` from studies' ``results.json`` (several studies of one
+    seed, e.g. each with other methods, drive the same episodes and merge)."""
+    out: dict[tuple, dict[str, dict[str, Any]]] = {}
+    for result in results:
+        seed = result["config"]["seed"]
+        for it in result["iterations"]:
+            if it["phase"] != "online":
+                continue
+            for town, methods in it["towns"].items():
+                for method, figures in methods.items():
+                    for e in figures["episodes"]:
+                        out.setdefault((seed, town, it["label"], e["route"]), {})[method] = e
+    return out
+
+
+def judge(results: list[dict[str, Any]], learner: str = "timing", cells: list[dict[str, Any]] | None = None
+          ) -> dict[str, Any]:
+    """The pre-registered figures of ``learner`` (and of explore and the oracle) on the benchmark's episodes:
+    the gap closed on the late cells (pooled and per town), the on-time cost ratio, collisions over all cells and
+    the comparison with ``adapt`` and ``sysid`` where they drove the same episodes (95 % paired bootstrap CIs)."""
+    import numpy as np
+
+    from pernav.diagnostics.stats import gap_closed, paired_difference, paired_ratio
+
+    late = {(c["town"], c["round"]): c["late"] for c in (cells or classify(personal_schedule(), ["Town1", "Town3"]))}
+    pairs = episodes(results)
+
+    def values(keys: list[tuple], method: str, field: str = "tracking_cost") -> np.ndarray:
+        return np.array([pairs[k][method][field] for k in keys], dtype=float)
+
+    def select(want: bool | None, methods: tuple[str, ...], town: str | None = None) -> list[tuple]:
+        return sorted(k for k, v in pairs.items() if set(methods) <= set(v) and (k[1], k[2]) in late
+                      and (want is None or late[(k[1], k[2])] == want) and (town is None or k[1] == town))
+
+    out: dict[str, Any] = {"learner": learner, "seeds": sorted({k[0] for k in pairs})}
+    base = ("explore", "oracle")
+    for name, want in (("late", True), ("on_time", False)):
+        keys = select(want, base)
+        if not keys:
+            continue
+        row: dict[str, Any] = {"episodes": len(keys), "explore": float(values(keys, "explore").mean()),
+                               "oracle": float(values(keys, "oracle").mean()),
+                               "oracle_gain": paired_difference(values(keys, "explore"), values(keys, "oracle"))}
+        with_learner = select(want, (*base, learner))
+        if with_learner:
+            e, m, o = (values(with_learner, x) for x in ("explore", learner, "oracle"))
+            row.update({"learner": float(m.mean()), "learner_episodes": len(with_learner),
+                        "gap_closed": gap_closed(e, m, o), "cost_ratio": paired_ratio(m, e),
+                        "per_town": {}})
+            for town in sorted({k[1] for k in with_learner}):
+                tk = select(want, (*base, learner), town)
+                te, tm, to = (values(tk, x) for x in ("explore", learner, "oracle"))
+                row["per_town"][town] = {"explore": float(te.mean()), "oracle": float(to.mean()),
+                                         "learner": float(tm.mean()), "oracle_gain": paired_difference(te, to),
+                                         "gap_closed": gap_closed(te, tm, to)}
+            for other in ("adapt", "sysid"):
+                ok = select(want, (learner, other))
+                if ok:
+                    row[f"minus_{other}"] = paired_difference(values(ok, learner), values(ok, other))
+                    row[f"minus_{other}"]["seeds"] = sorted({k[0] for k in ok})
+        out[name] = row
+    every = select(None, ("explore", learner))
+    if every:
+        out["collisions"] = {"explore": float(values(every, "explore", "collisions").sum()),
+                             "learner": float(values(every, learner, "collisions").sum()),
+                             "learner_minus_explore": paired_difference(values(every, learner, "collisions"),
+                                                                        values(every, "explore", "collisions"))}
+    return out

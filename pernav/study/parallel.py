@@ -120,22 +120,24 @@ class EpisodeJob:
     entry: Any  # schedule Entry
     route: int
     seed: int
-    policy: str  # explore | oracle | mpc
+    policy: str  # explore | oracle | mpc | belief
     n_actions: int = 7
     model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
-    params: Any = None  # adapted parameters (TensorDict) or None
+    params: Any = None  # adapted parameters (TensorDict), a belief (dict) for "belief", or None
     policy_name: str = ""  # the study method this episode evaluates
     planner_options: dict | None = None  # overrides of cfg.planner for this episode (e.g. a round's rescue off)
 
 
 def make_policy(job: EpisodeJob) -> Any:
     """The TensorDictModule that drives ``job``."""
-    from pernav.env.torchrl_env import explore_module, oracle_module
+    from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
 
     if job.policy == "explore":
         return explore_module()
     if job.policy == "oracle":
         return oracle_module()
+    if job.policy == "belief":  # explore's rule re-timed for a belief about the user (the env computes it)
+        return info_action_module("belief_action")
     if job.policy != "mpc" or job.model is None:
         raise ValueError(f"unknown policy spec {job.policy!r}")
     from pernav.model.dynamics import DynamicsModel
@@ -157,6 +159,7 @@ def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
 
     t0 = time.perf_counter()
     policy = make_policy(job)
-    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions)
+    belief = job.params if job.policy == "belief" else None
+    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions, belief)
     timing = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
     return {"route": job.route, **episode_metrics(trajectory), "_timing": timing}

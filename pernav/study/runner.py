@@ -42,6 +42,8 @@ from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
 from pernav.model.dynamics import DynamicsModel
+from pernav.model.timing import TARGETS as TIMING_TARGETS
+from pernav.model.timing import TimingModel, timing_features
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
@@ -53,6 +55,7 @@ from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
 from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
+from pernav.world.drivers import Population, resolve
 
 __all__ = ["CheckpointError", "final_models", "run_town"]
 
@@ -130,18 +133,24 @@ def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, A
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
         return method, 7, None, None, method
+    if method == "timing":  # explore's rule re-timed for the belief read from tau
+        return "belief", 7, None, adapted["timing"], method
     learner = learners[method]
     return "mpc", learner.n_actions, learner.spec(), adapted[method], method
 
 
-def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7):
+def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7,
+         belief: dict[str, float] | None = None):
     config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21, **env_planning_config(cfg.planner)}
+    if belief is not None:
+        config["belief"] = belief
     options = {"route": route, "user": entry.profile(), "context": entry.context()}
     return history_env(town, options, config=config, seed=seed, K=cfg.train.K)
 
 
-def episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7):
-    return drive(_env(cfg, town, entry, route, seed, n_actions), policy)
+def episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7,
+            belief: dict[str, float] | None = None):
+    return drive(_env(cfg, town, entry, route, seed, n_actions, belief), policy)
 
 
 def _summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
@@ -291,6 +300,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             if index + 1 == first_online:
                 with _Timer(profile, "training_s"):
                     _warm_start(cfg, learners)
+                if "timing" in methods:
+                    with _Timer(profile, "timing_offline_s"):
+                        state["timing_model"] = _fit_timing(cfg, town).state_dict()
                 state["warm"] = copy.deepcopy({k: v.state() for k, v in learners.items()})  # not live tensors
         elif entry.drives:  # a person cannot drive every method's episodes: a round of data, losses and updates
             if "adapt" in learners:
@@ -310,6 +322,9 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             with _Timer(profile, "adaptation_s"):
                 adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
                            for name, learner in learners.items()}
+                if "timing" in methods:  # the timing learner's belief about this round's user, from tau alone
+                    adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
+                    state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
                 checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
             for name, check in checks.items():
                 if check is not None:
@@ -367,6 +382,8 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
                           **({"rescue_checks": state["rescue_checks"][name]} if name in state.get("rescue_checks", {})
                              else {})}
                    for name, learner in learners.items()}
+    if "timing_beliefs" in state:
+        diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
     return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
             "diagnostics": diagnostics,
@@ -427,6 +444,26 @@ def _calibrate(cfg: StudyConfig, town: str, entry: Entry, index: int, learners: 
             traj = episode(cfg, town, entry, rng.randrange(10), seed, RetimedExplore(seed=seed))
             for learner in learners.values():
                 learner.add(index, traj, calibration=True)
+
+
+def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
+    """The timing learner's offline phase: ``cfg.timing["offline_drivers"]`` simulated drivers of the population
+    prior each drive one explore route of ``town``; their drives' features and their effective reaction and
+    decision times (known: they are simulated) fit the :class:`~pernav.model.timing.TimingModel`."""
+    options = cfg.timing
+    population = Population(seed=derive_seed(cfg.seed, town, "timing", "population"))
+    rng = random.Random(derive_seed(cfg.seed, town, "timing", "routes"))
+    features, targets = [], []
+    for k in tqdm(range(int(options["offline_drivers"])), desc=f"{town} timing offline drives", leave=False):
+        profile, context = population.sample()
+        entry = Entry(f"timing offline {k}", "offline", profile.to_dict(), **context.to_dict())
+        trajectory = episode(cfg, town, entry, rng.randrange(10), derive_seed(cfg.seed, town, "timing", k),
+                             explore_module())
+        driver = resolve(profile, context)
+        features.append(timing_features(trajectory))
+        targets.append(torch.tensor([getattr(driver, name) for name in TIMING_TARGETS]))
+    model = TimingModel(l2=options["l2"], quantile=options["quantile"], gate=options["gate"])
+    return model.fit(torch.stack(features), torch.stack(targets))
 
 
 def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
