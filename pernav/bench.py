@@ -377,11 +377,49 @@ def bench_play(quick: bool = False) -> dict[str, Any]:
     }
 
 
-BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, "play": bench_play}
+def bench_timing(quick: bool = False) -> dict[str, Any]:
+    """Decision time of the timing learner (:mod:`pernav.model.timing`): per step, explore's rule re-timed for a
+    belief (the env computes it beside explore's own action, so the reference is explore's rule alone, same
+    states); per round, the belief read from tau (features and the ridge prediction). The model is fitted on
+    synthetic features (its decision time does not depend on what it learned)."""
+    import torch
+
+    from pernav.env.navigation import NavigationEnv
+    from pernav.env.policies import belief_policy, explore_policy
+    from pernav.env.torchrl_env import explore_module
+    from pernav.model.timing import N_FEATURES, TimingModel
+    from pernav.trainer.collect import drive, history_env
+
+    env = NavigationEnv("Town3", config={"n_traffic": 8})
+    env.reset(seed=0, options={"route": 1, "user": "user3"})
+    rule, explore = belief_policy({"reaction_time": 2.6, "decision_time": 3.0}), explore_policy()
+    belief_ms, explore_ms = [], []
+    for _ in range(20 if quick else 80):
+        view = env.nav_view()
+        belief_ms.append(_timed(rule, view)[0])
+        explore_ms.append(_timed(explore, view)[0])
+        env.step(explore(view))
+    g = torch.Generator().manual_seed(0)
+    model = TimingModel().fit(torch.randn(64, N_FEATURES, generator=g), torch.rand(64, 2, generator=g) + 1.0)
+    tau = drive(history_env("Town3", {"route": 1, "user": "user3"}, config={"n_traffic": 2}, seed=0, K=2),
+                explore_module())
+    round_ms = [_timed(model.belief, tau)[0] for _ in range(3 if quick else 10)]
+    return {
+        "decision_ms_median": _median_ms(belief_ms),
+        "explore_rule_ms_median": _median_ms(explore_ms),
+        "decision_vs_explore_ratio": round(_median_ms(belief_ms) / max(_median_ms(explore_ms), 1e-9), 2),
+        "belief_from_tau_ms_median": _median_ms(round_ms),
+        "tau_steps": int(tau.shape[0]),
+        "target": "decision_ms_median <= 15",
+    }
+
+
+BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, "play": bench_play,
+              "timing": bench_timing}
 
 
 def run_benchmarks(which: str = "all", quick: bool = False) -> dict[str, dict[str, Any]]:
-    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``) or ``all``; returns {name: figures}."""
+    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``) or ``all``; returns {name: figures}."""
     if which != "all" and which not in BENCHMARKS:
         raise ValueError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)} or all")
     names = list(BENCHMARKS) if which == "all" else [which]

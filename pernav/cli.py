@@ -29,7 +29,7 @@ from pernav.world.layout import PLAYBACK
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
-BENCH_CHOICES = ("sim", "planner", "train", "play")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
+BENCH_CHOICES = ("sim", "planner", "train", "play", "timing")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
 MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
 
 
@@ -317,7 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_bench)
 
     p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
-    p.add_argument("--preset", default="default", help="smoke | default | paper | personal | personal_paper")
+    p.add_argument("--preset", default="default",
+                   help="smoke | default | paper | personal | personal_paper | personal_sweep")
     p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
     p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
     p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
@@ -353,6 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
                    help="run towns and evaluation episodes as Ray tasks (a local cluster when no ADDRESS)")
     p.set_defaults(func=_study)
+
+    p = sub.add_parser("judge", help="the personal benchmark's pre-registered figures of a learner (docs/personal.md)")
+    p.add_argument("studies", nargs="+", help="study folders (or results.json files) of the personal preset; "
+                                              "several per seed merge (the same episodes)")
+    p.add_argument("--out", required=True, help="folder for judged.json, judged.md (and sweep.png)")
+    p.add_argument("--learner", default="timing", help="the method judged (default: timing)")
+    p.add_argument("--sweep", nargs="+", help="study folders of the personal_sweep preset: draw sweep.png")
+    p.set_defaults(func=_judge)
     return parser
 
 
@@ -409,6 +418,40 @@ def _study(args: argparse.Namespace) -> None:
     print(collision_table(results))
     print(f"results: {Path(args.out) / 'results.json'}, report: {Path(args.out) / 'report.md'} "
           f"({results['timing']['wall_s']} s)")
+
+
+def _judge(args: argparse.Namespace) -> None:
+    import json
+
+    from pernav.study.headroom import judge, judge_markdown, plot_sweep
+
+    def load(paths: list[str]) -> list[dict]:
+        out = []
+        for path in paths:
+            file = Path(path) / "results.json" if Path(path).is_dir() else Path(path)
+            if not file.is_file():
+                raise UsageError(f"{path!r} holds no results.json (run pernav study first)")
+            try:
+                out.append(json.loads(file.read_text()))
+            except json.JSONDecodeError:
+                raise UsageError(f"{str(file)!r} is not a results.json (not JSON)") from None
+        return out
+
+    target = Path(args.out)
+    files = [target / "judged.json", target / "judged.md", *([target / "sweep.png"] if args.sweep else [])]
+    taken = [str(f) for f in files if f.exists()]
+    if taken:
+        raise UsageError(f"{taken[0]!r} exists; choose another --out (nothing is overwritten)")
+    try:
+        figures = judge(load(args.studies), learner=args.learner)
+    except KeyError as exc:
+        raise UsageError(f"a study is not of the personal benchmark (round {exc} is not one of its cells)") from None
+    target.mkdir(parents=True, exist_ok=True)
+    if args.sweep:
+        figures["sweep"] = plot_sweep(load(args.sweep), str(target / "sweep.png"))
+    (target / "judged.json").write_text(json.dumps(figures, indent=1) + "\n")
+    (target / "judged.md").write_text(judge_markdown(figures))
+    print(judge_markdown(figures))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from pernav.study.headroom import personal_schedule
+from pernav.study.headroom import personal_schedule, sweep_schedule
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
@@ -161,8 +161,16 @@ def _paper() -> StudyConfig:
                        offline_trajectories=4, n_traffic=8)
 
 
+def _personal_sweep() -> StudyConfig:
+    # the headroom sweep: the average driver with its reaction time shifted (pernav.study.headroom.SWEEP_SHIFTS)
+    cfg = _personal()
+    cfg.preset, cfg.schedule = "personal_sweep", sweep_schedule()
+    cfg.methods = ["explore", "adapt", "timing", "oracle"]
+    return cfg
+
+
 PRESETS = {"smoke": _smoke, "default": _default, "paper": _paper, "personal": _personal,
-           "personal_paper": lambda: _personal(paper_sized=True)}
+           "personal_paper": lambda: _personal(paper_sized=True), "personal_sweep": _personal_sweep}
 
 
 def preset(name: str) -> StudyConfig:

@@ -21,8 +21,8 @@ from pernav.env.policies import lateness
 from pernav.study.schedule import Entry, paper_schedule
 from pernav.world.drivers import Population, resolve
 
-__all__ = ["LATE_EXCESS", "PERSONAL_POPULATION_SEED", "SEEDS", "TARGETS", "classify", "personal_schedule",
-           "preregistration"]
+__all__ = ["LATE_EXCESS", "PERSONAL_POPULATION_SEED", "SEEDS", "SWEEP_SHIFTS", "TARGETS", "classify", "episodes",
+           "judge", "judge_markdown", "personal_schedule", "plot_sweep", "preregistration", "sweep_schedule"]
 
 #: a cell is late when explore is late for the commit in at least this share more of the prompts than the oracle
 LATE_EXCESS = 0.05
@@ -68,6 +68,23 @@ def personal_schedule() -> list[Entry]:
     for i in range(POPULATION_DRAWS):
         profile, context = pop.sample()
         entries.append(Entry(f"population {i}", "online", profile.to_dict(), **context.to_dict()))
+    return entries
+
+
+#: the headroom sweep: the average driver (average context) with its reaction time shifted by these seconds
+SWEEP_SHIFTS = (-0.4, 0.0, 0.4, 0.8, 1.2)
+
+
+def sweep_schedule() -> list[Entry]:
+    """The ``personal_sweep`` preset's schedule: the default study's offline rounds, then one online round per
+    reaction-time shift of the average driver (:data:`SWEEP_SHIFTS`; every other trait and the context average)."""
+    from pernav.world.drivers import POPULATION_AVERAGE
+
+    by_label = {e.label: e for e in paper_schedule()}
+    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+    for shift in SWEEP_SHIFTS:
+        profile = {**POPULATION_AVERAGE.to_dict(), "reaction_time": round(POPULATION_AVERAGE.reaction_time + shift, 2)}
+        entries.append(Entry(f"reaction {shift:+.1f} s", "online", profile))
     return entries
 
 
@@ -126,10 +143,11 @@ def judge(results: list[dict[str, Any]], learner: str = "timing", cells: list[di
         return sorted(k for k, v in pairs.items() if set(methods) <= set(v) and (k[1], k[2]) in late
                       and (want is None or late[(k[1], k[2])] == want) and (town is None or k[1] == town))
 
-    out: dict[str, Any] = {"learner": learner, "seeds": sorted({k[0] for k in pairs})}
+    ran = select(None, ("explore", learner)) or select(None, ("explore",))
+    out: dict[str, Any] = {"learner": learner, "seeds": sorted({k[0] for k in ran})}
     base = ("explore", "oracle")
     for name, want in (("late", True), ("on_time", False)):
-        keys = select(want, base)
+        keys = select(want, (*base, learner)) or select(want, base)  # the learner's episodes where it ran
         if not keys:
             continue
         row: dict[str, Any] = {"episodes": len(keys), "explore": float(values(keys, "explore").mean()),
@@ -160,3 +178,85 @@ def judge(results: list[dict[str, Any]], learner: str = "timing", cells: list[di
                              "learner_minus_explore": paired_difference(values(every, learner, "collisions"),
                                                                         values(every, "explore", "collisions"))}
     return out
+
+
+def _ci(x: dict[str, float], scale: float = 1.0, fmt: str = "{:+.0f}", unit: str = "") -> str:
+    """``mean [low, high]`` of a CI dict, scaled and formatted."""
+    m, lo, hi = (fmt.format(x[k] * scale) for k in ("mean", "low", "high"))
+    return f"{m}{unit} [{lo}, {hi}]"
+
+
+def judge_markdown(j: dict[str, Any]) -> str:
+    """The judged figures as a Markdown table (what docs/personal.md shows)."""
+    learner = j["learner"]
+    lines = [f"Seeds {', '.join(map(str, j['seeds']))}; paired episodes, 95 % bootstrap CIs.", "",
+             f"| cells | episodes | explore | oracle | {learner} | oracle − explore | gap closed by {learner} | "
+             f"{learner} / explore |", "|---|---|---|---|---|---|---|---|"]
+    for name in ("late", "on_time"):
+        r = j.get(name)
+        if not r:
+            continue
+        gain = {k: -v for k, v in r["oracle_gain"].items() if k != "n"}
+        gain["low"], gain["high"] = gain["high"], gain["low"]
+        closed = _ci(r["gap_closed"], 100, "{:.0f}", " %") if "gap_closed" in r else "–"
+        ratio = _ci(r["cost_ratio"], 1, "{:.3f}") if "cost_ratio" in r else "–"
+        lines.append(f"| {name.replace('_', ' ')} | {r['episodes']} | {r['explore']:.0f} | {r['oracle']:.0f} | "
+                     f"{r.get('learner', float('nan')):.0f} | {_ci(gain)} | {closed} | {ratio} |")
+        for town, t in r.get("per_town", {}).items():
+            g = {"mean": -t["oracle_gain"]["mean"], "low": -t["oracle_gain"]["high"], "high": -t["oracle_gain"]["low"]}
+            lines.append(f"| {name.replace('_', ' ')}, {town} | | {t['explore']:.0f} | {t['oracle']:.0f} | "
+                         f"{t['learner']:.0f} | {_ci(g)} | {_ci(t['gap_closed'], 100, '{:.0f}', ' %')} | |")
+    lines.append("")
+    late = j.get("late", {})
+    for other in ("adapt", "sysid"):
+        if f"minus_{other}" in late:
+            d = late[f"minus_{other}"]
+            lines.append(f"- Late cells, {learner} − {other} (seeds {', '.join(map(str, d['seeds']))}, {d['n']} "
+                         f"episodes): {_ci(d)}")
+    if "collisions" in j:
+        c = j["collisions"]
+        lines.append(f"- Collisions over all cells: explore {c['explore']:.0f}, {learner} {c['learner']:.0f}; "
+                     f"{learner} − explore per episode {_ci(c['learner_minus_explore'], 1, '{:+.3f}')}")
+    return "\n".join(lines) + "\n"
+
+
+def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...] = ("explore", "adapt", "timing",
+                                                                                        "oracle")) -> dict[str, Any]:
+    """The headroom sweep's figure: mean tracking cost (95 % CI over routes and seeds) per reaction-time shift,
+    one panel per town; returns the plotted figures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pernav.diagnostics.stats import bootstrap_ci
+
+    pairs = episodes(results)
+    towns = sorted({k[1] for k in pairs})
+    labels = [e.label for e in sweep_schedule() if e.phase == "online"]
+    data: dict[str, Any] = {}
+    fig, axes = plt.subplots(1, len(towns), figsize=(5.5 * len(towns), 4), squeeze=False)
+    for ax, town in zip(axes[0], towns, strict=True):
+        data[town] = {}
+        for method in methods:
+            points = []
+            for shift, label in zip(SWEEP_SHIFTS, labels, strict=True):
+                v = [p[method]["tracking_cost"] for k, p in pairs.items() if k[1] == town and k[2] == label
+                     and method in p]
+                if v:
+                    points.append((shift, *bootstrap_ci(v)))
+            if not points:
+                continue
+            data[town][method] = points
+            x, m, lo, hi = (list(c) for c in zip(*points, strict=True))
+            ax.plot(x, m, marker="o", label=method)
+            ax.fill_between(x, lo, hi, alpha=0.15)
+        ax.set_title(town)
+        ax.set_xlabel("reaction time − the average driver's (s)")
+        ax.set_ylabel("tracking cost per route")
+        ax.axvspan(-0.45, 0.45, color="0.9", zorder=0)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return data
