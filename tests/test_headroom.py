@@ -113,3 +113,42 @@ def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path) -> No
     for it in results["iterations"]:
         if it["phase"] == "online":
             assert {"explore", "timing", "oracle"} <= set(it["towns"]["Town1"])
+
+
+def _synthetic_results(seed: int) -> dict:
+    """A results.json of the personal preset with one route per cell: explore 100, oracle 50 and timing 60 on the
+    late cells; explore 100, oracle 100 and timing 103 on the on-time cells; one timing collision per seed."""
+    iterations = []
+    cells = classify(personal_schedule(), ["Town1", "Town3"])
+    for label in dict.fromkeys(c["round"] for c in cells):
+        towns = {}
+        for c in (c for c in cells if c["round"] == label):
+            costs = {"explore": 100.0, "oracle": 50.0, "timing": 60.0} if c["late"] else \
+                {"explore": 100.0, "oracle": 100.0, "timing": 103.0}
+            towns[c["town"]] = {m: {"tracking_cost": v, "episodes": [
+                {"route": 0, "tracking_cost": v, "collisions": int(m == "timing" and label == "user3"
+                                                                   and c["town"] == "Town1")}]}
+                for m, v in costs.items()}
+        iterations.append({"label": label, "phase": "online", "towns": towns})
+    return {"config": {"seed": seed}, "iterations": iterations}
+
+
+def test_judge_computes_the_preregistered_figures_on_known_episodes(tmp_path) -> None:
+    from pernav.cli import main
+    from pernav.study.headroom import judge
+
+    j = judge([_synthetic_results(0), _synthetic_results(1)])
+    assert j["late"]["episodes"] == 40 and j["on_time"]["episodes"] == 24
+    assert j["late"]["gap_closed"]["mean"] == pytest.approx(0.8)
+    assert j["on_time"]["cost_ratio"]["mean"] == pytest.approx(1.03)
+    assert j["late"]["per_town"]["Town3"]["gap_closed"]["mean"] == pytest.approx(0.8)
+    assert j["collisions"]["learner"] == 2 and j["collisions"]["explore"] == 0
+    files = []
+    for seed in (0, 1):
+        files.append(tmp_path / f"r{seed}.json")
+        files[-1].write_text(json.dumps(_synthetic_results(seed)))
+    out = tmp_path / "judged"
+    assert main(["judge", *map(str, files), "--out", str(out)]) == 0
+    assert json.loads((out / "judged.json").read_text())["late"]["gap_closed"]["mean"] == pytest.approx(0.8)
+    assert main(["judge", *map(str, files), "--out", str(out)]) == 2  # nothing is overwritten
+    assert main(["judge", str(tmp_path / "missing"), "--out", str(tmp_path / "o2")]) == 2
