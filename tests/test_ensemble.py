@@ -80,15 +80,16 @@ def test_round_loss_is_held_out_and_exact():
 
 
 def _two_round_ensemble(config: TrainConfig, size: int, tau_length: int, other_length: int,
-                        context: int = 0) -> EnsembleTrainer:
+                        context: int = 0, **options) -> EnsembleTrainer:
     """An ensemble of small models (seed 2, normalization fitted; ``context``: their context size) on two
-    rounds of random data, each with a tau of ``tau_length`` steps and one more trajectory of ``other_length``."""
+    rounds of random data, each with a tau of ``tau_length`` steps and one more trajectory of ``other_length``;
+    ``options``: more ``EnsembleTrainer`` arguments."""
     buffers = RoundBuffers(L=config.L, seed=0)
     for r in (0, 1):
         buffers.add(r, _trajectory(tau_length, seed=2 * r), tau=True)
         buffers.add(r, _trajectory(other_length, seed=2 * r + 1))
     ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16), context=context), buffers, config, size=size,
-                          seed=2)
+                          seed=2, **options)
     ens.fit_normalization()
     return ens
 
@@ -353,3 +354,31 @@ def test_context_adaptation_learns_which_round_it_is_from_tau():
     ens.train(150, meta=True)
     for r in (0, 1):
         assert ens.round_loss(r, adapted=True) < 0.5 * ens.round_loss(r, adapted=False), r
+
+
+@pytest.mark.parametrize("size", [1, 2])
+def test_ensemble_trainer_uses_its_loss_fn_in_updates_adaptation_fine_tuning_and_round_loss(size):
+    from pernav.model.losses import multistep_loss
+
+    calls: list[str] = []
+
+    def two_step(model, batch, params=None, **kwargs):  # the L-step loss on the first 2 steps of each window
+        calls.append("stacked" if params is not None and params.batch_dims else "one")
+        return multistep_loss(model, batch[:, :2], params=params, **kwargs)
+
+    def trained(**loss) -> EnsembleTrainer:
+        ens = _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2, hidden=[16, 16]), size, 20, 15,
+                                  **loss)
+        ens.train(2, meta=True)
+        ens.train(2, meta=False)
+        return ens
+
+    custom, default = trained(loss_fn=two_step), trained()
+    assert calls.count("stacked" if size > 1 else "one") >= 4  # meta and plain updates, U inside the meta ones
+    assert not torch.equal(custom.model.net[0].weight, default.model.net[0].weight)
+    for step in (lambda e: e.parameters(e.buffers.tau(0), adapted=True, alpha=0.01),
+                 lambda e: e.fine_tuned([_trajectory(20, seed=9)], updates=1),
+                 lambda e: e.round_loss(0, adapted=False)):
+        calls.clear()
+        step(custom)
+        assert calls, step
