@@ -16,7 +16,8 @@ Example:
     >>> T = 20
     >>> buffers.add(0, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
     ...     "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]), tau=True)
-    >>> ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3), size=2)
+    >>> ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3, hidden=[16]),
+    ...                       size=2)
     >>> ens.fit_normalization()
     >>> len(ens.train(2, meta=False)), len(ens.parameters(buffers.tau(0), adapted=True, alpha=0.01))
     (2, 2)
