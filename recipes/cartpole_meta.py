@@ -207,21 +207,24 @@ def plot(results: dict[str, dict[str, list[list[float]]]], path: Path, args: arg
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    # every option has a help string: ArgumentDefaultsHelpFormatter shows the default only of those
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     parser.add_argument("out", type=Path, help="a new folder for results.json, summary.md, returns.png")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4], help="seeds (one full run each)")
     parser.add_argument("--offline", type=int, default=8, help="offline rounds (tasks)")
-    parser.add_argument("--offline-episodes", type=int, default=4)
+    parser.add_argument("--offline-episodes", type=int, default=4, help="random-policy episodes per offline round")
     parser.add_argument("--online", type=int, default=6, help="online rounds (tasks)")
     parser.add_argument("--episodes", type=int, default=2, help="episodes per method and online round")
-    parser.add_argument("--max-steps", type=int, default=150)
+    parser.add_argument("--max-steps", type=int, default=150, help="steps per episode at most")
     parser.add_argument("--horizon", type=int, default=6, help="planning horizon (2^H sequences)")
     parser.add_argument("--K", type=int, default=1, help="history window of the model (1: the current state only)")
     parser.add_argument("--L", type=int, default=3, help="L-step loss length")
     parser.add_argument("--alpha", type=float, default=0.05, help="adaptation step")
-    parser.add_argument("--warm-updates", type=int, default=300)
-    parser.add_argument("--offline-updates", type=int, default=300)
-    parser.add_argument("--online-updates", type=int, default=30)
+    parser.add_argument("--warm-updates", type=int, default=300, help="plain updates of the offline warm start")
+    parser.add_argument("--offline-updates", type=int, default=300,
+                        help="updates after the warm start (FTML for meta, plain for sysid)")
+    parser.add_argument("--online-updates", type=int, default=30, help="updates of each model after each online round")
     args = parser.parse_args(argv)
     if args.out.exists():
         print(f"error: {args.out} exists; choose a new folder (nothing is overwritten)", file=sys.stderr)

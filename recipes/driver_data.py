@@ -73,14 +73,15 @@ def own_ensemble(trajectories: list, updates: int, seed: int, init: list[dict] |
     trajectories: that ensemble unchanged); ``bootstrap``: each member fine-tunes on its own resample; ``config``:
     the members' architecture (``init``'s, e.g. a study's model that reads the road; default: the default preset's)."""
     config = config or {"state_dim": STATE_DIM, "n_actions": 7, "K": TRAIN.K, "hidden": TRAIN.hidden}
+    train = TRAIN.for_model(config)  # the study's model may differ from the default preset's
     if init is None:
-        trainer = EnsembleTrainer(lambda: DynamicsModel(**config), RoundBuffers.of(trajectories, TRAIN.L, seed),
-                                  TRAIN, size=TRAIN.ensemble, seed=seed)
+        trainer = EnsembleTrainer(lambda: DynamicsModel(**config), RoundBuffers.of(trajectories, train.L, seed),
+                                  train, size=train.ensemble, seed=seed)
         trainer.fit_normalization()
         trainer.train(updates, meta=False)
         params = [meta_parameters(m.model).detach().clone() for m in trainer.members]
     else:
-        trainer = EnsembleTrainer.from_states(config, init, TRAIN, seed=seed)
+        trainer = EnsembleTrainer.from_states(config, init, train, seed=seed)
         params = (trainer.fine_tuned(trajectories, updates, seed, bootstrap=bootstrap) if trajectories
                   else [meta_parameters(m.model).detach().clone() for m in trainer.members])
     model = trainer.model

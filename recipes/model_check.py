@@ -63,7 +63,7 @@ def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: 
     updates on ``tau`` and ``calibration`` re-timed drives of the driver."""
     drives = [drive(driver_env(driver, town, k, 780 + k, meta.K, PLANNING), RetimedExplore(seed=780 + k))
               for k in range(calibration)]
-    train = TrainConfig(L=5, batch=128, K=meta.K, hidden=list(meta.hidden))
+    train = TrainConfig(L=5, batch=128).for_model(meta.config())
     return EnsembleTrainer.from_states(meta.config(), members, train).fine_tuned([tau, *drives], updates, seed=0)
 
 
@@ -72,7 +72,8 @@ def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsMod
     for k in range(6):
         buffers.add(0, drive(driver_env(driver, town, k % 10, 500 + k, like.K), explore_module()), tau=(k == 0))
     model = DynamicsModel(**like.config())
-    trainer = FTMLTrainer(model, buffers, TrainConfig(updates=50, batch=128, warm_updates=300), seed=0)
+    trainer = FTMLTrainer(model, buffers, TrainConfig(updates=50, batch=128, warm_updates=300).for_model(like.config()),
+                          seed=0)
     trainer.fit_normalization()
     trainer.train(400, meta=False)
     return model

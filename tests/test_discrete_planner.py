@@ -193,6 +193,23 @@ def test_refuses_continuous_actions_and_bad_arguments() -> None:
         DiscreteTreeSearchPlanner(env, 2)
 
 
+@pytest.mark.parametrize("B", [1, 3])
+def test_refuses_roots_with_no_allowed_action(B: int) -> None:
+    """An all-false mask (for a root, or at one level of a per-level mask) leaves no sequence to plan: refused,
+    naming the roots, instead of action 0 with a return of -inf."""
+    planner = DiscreteTreeSearchPlanner(ToyModelEnv(_Dynamics(0)), 2, mask_key="mask")
+    roots = TensorDict({"x": torch.zeros(B, D), "mask": torch.ones(B, A, dtype=torch.bool)}, [B])
+    roots["mask"][B - 1] = False
+    with pytest.raises(ValueError, match=rf"no allowed action at level 0 for root\(s\) \[{B - 1}\]"):
+        planner(roots.clone())
+    per_level = TensorDict({"x": torch.zeros(B, D), "mask": torch.ones(B, 2, A, dtype=torch.bool)}, [B])
+    per_level["mask"][0, 1] = False  # the second level of the first root
+    with pytest.raises(ValueError, match=r"at level 1 for root\(s\) \[0\]"):
+        planner(per_level.clone())
+    per_level["mask"][0, 1, 3] = True  # one action is enough
+    assert planner(per_level.clone())["action"].shape == (B,)
+
+
 def test_toy_env_specs_pass() -> None:
     check_env_specs(ToyModelEnv(_Dynamics(0)))
 

@@ -3,6 +3,8 @@ and the held-out round loss."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -45,7 +47,7 @@ def test_ensemble_members_differ_train_and_round_trip():
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(30), tau=True)
     buffers.add(0, _trajectory(30, seed=1))
-    cfg = TrainConfig(batch=8, L=3)
+    cfg = TrainConfig(batch=8, L=3, hidden=[16])
     ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, cfg, size=3, seed=5)
     weights = [m.model.net[0].weight for m in ens.members]
     assert not torch.equal(weights[0], weights[1])
@@ -71,7 +73,7 @@ def test_round_loss_is_held_out_and_exact():
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(12), tau=True)
     buffers.add(0, _trajectory(9, seed=1))
-    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3), size=1).members[0]
+    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3, hidden=[8]), size=1).members[0]
     held_out = buffers.data(0)[12:]  # the second trajectory
     with torch.no_grad():
         expected = float(multistep_loss(trainer.model, trajectory_windows(held_out, 3, 3)))
@@ -80,15 +82,17 @@ def test_round_loss_is_held_out_and_exact():
 
 
 def _two_round_ensemble(config: TrainConfig, size: int, tau_length: int, other_length: int,
-                        context: int = 0) -> EnsembleTrainer:
+                        context: int = 0, **options) -> EnsembleTrainer:
     """An ensemble of small models (seed 2, normalization fitted; ``context``: their context size) on two
-    rounds of random data, each with a tau of ``tau_length`` steps and one more trajectory of ``other_length``."""
+    rounds of random data, each with a tau of ``tau_length`` steps and one more trajectory of ``other_length``;
+    ``options``: more ``EnsembleTrainer`` arguments. The config's model fields are set to these models'."""
+    config = replace(config, hidden=[16, 16], context=context)
     buffers = RoundBuffers(L=config.L, seed=0)
     for r in (0, 1):
         buffers.add(r, _trajectory(tau_length, seed=2 * r), tau=True)
         buffers.add(r, _trajectory(other_length, seed=2 * r + 1))
     ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16, 16), context=context), buffers, config, size=size,
-                          seed=2)
+                          seed=2, **options)
     ens.fit_normalization()
     return ens
 
@@ -120,7 +124,8 @@ def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_th
     torch.manual_seed(0)
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(30), tau=True)
-    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3), size=2, seed=1)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3, hidden=[16]),
+                          size=2, seed=1)
     ens.fit_normalization()
     user = [_trajectory(25, seed=7), _trajectory(20, seed=8)]
     before = [meta_parameters(m.model).detach().clone() for m in ens.members]
@@ -150,7 +155,8 @@ def test_replayed_personal_updates_fit_the_user_and_forget_the_population_less()
     buffers = RoundBuffers(L=3, seed=0)
     for i, t in enumerate(population):
         buffers.add(i, t, tau=True)
-    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(32,)), buffers, TrainConfig(batch=32, L=3), size=2, seed=1)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(32,)), buffers, TrainConfig(batch=32, L=3, hidden=[32]),
+                          size=2, seed=1)
     ens.fit_normalization()
     ens.train(100, meta=False)  # the "meta" parameters: fitted to the population
     sampling = ens.members[0].generator.get_state(), buffers.generator.get_state()
@@ -187,7 +193,8 @@ def test_weighted_loss_is_the_weighted_mean_over_windows_and_bootstrap_members_f
     # bootstrap: each member fits a resample of the user's drives (by seed), so members differ from the plain fit
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(30), tau=True)
-    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3), size=3, seed=1)
+    ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=16, L=3, hidden=[16]),
+                          size=3, seed=1)
     ens.fit_normalization()
     user = [_trajectory(25, seed=s) for s in (7, 8, 9, 10)]
     plain = ens.fine_tuned(user, updates=20, seed=3)
@@ -204,7 +211,7 @@ def test_calibration_drives_are_user_data_held_out_of_the_round_loss_and_round_t
     buffers.add(0, _trajectory(10, seed=1), calibration=True)
     buffers.add(0, _trajectory(9, seed=2))  # a rollout: the only held-out data
     assert [len(t) for t in buffers.user_trajectories(0)] == [12, 10]
-    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3), size=1).members[0]
+    trainer = EnsembleTrainer(lambda: DynamicsModel(hidden=(8,)), buffers, TrainConfig(L=3, hidden=[8]), size=1).members[0]
     from pernav.model.adapt import trajectory_windows
     from pernav.model.losses import multistep_loss
 
@@ -348,8 +355,59 @@ def test_context_adaptation_learns_which_round_it_is_from_tau():
             t["next", "observation"] = torch.randn(30, 14, generator=torch.Generator().manual_seed(i)) * 0.1 + shift
             buffers.add(r, t, tau=tau)
     ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(32,), context=2), buffers,
-                          TrainConfig(batch=32, L=2, rounds_per_update=2, alpha=1.0, lr=1e-2, backtrack=None), size=1)
+                          TrainConfig(batch=32, L=2, rounds_per_update=2, alpha=1.0, lr=1e-2, backtrack=None,
+                                      hidden=[32], context=2), size=1)
     ens.fit_normalization()
     ens.train(150, meta=True)
     for r in (0, 1):
         assert ens.round_loss(r, adapted=True) < 0.5 * ens.round_loss(r, adapted=False), r
+
+
+@pytest.mark.parametrize("size", [1, 2])
+def test_ensemble_trainer_uses_its_loss_fn_in_updates_adaptation_fine_tuning_and_round_loss(size):
+    from pernav.model.losses import multistep_loss
+
+    calls: list[str] = []
+
+    def two_step(model, batch, params=None, **kwargs):  # the L-step loss on the first 2 steps of each window
+        calls.append("stacked" if params is not None and params.batch_dims else "one")
+        return multistep_loss(model, batch[:, :2], params=params, **kwargs)
+
+    def trained(**loss) -> EnsembleTrainer:
+        ens = _two_round_ensemble(TrainConfig(batch=12, L=3, rounds_per_update=2), size, 20, 15, **loss)
+        ens.train(2, meta=True)
+        ens.train(2, meta=False)
+        return ens
+
+    custom, default = trained(loss_fn=two_step), trained()
+    assert calls.count("stacked" if size > 1 else "one") >= 4  # meta and plain updates, U inside the meta ones
+    assert not torch.equal(custom.model.net[0].weight, default.model.net[0].weight)
+    for step in (lambda e: e.parameters(e.buffers.tau(0), adapted=True, alpha=0.01),
+                 lambda e: e.fine_tuned([_trajectory(20, seed=9)], updates=1),
+                 lambda e: e.round_loss(0, adapted=False)):
+        calls.clear()
+        step(custom)
+        assert calls, step
+
+
+def test_trainers_refuse_a_config_that_disagrees_with_the_model_or_the_buffers():
+    from pernav.trainer.ftml import FTMLTrainer
+
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(20, K=1), tau=True)
+    config = TrainConfig(K=5, hidden=[256] * 3, L=7)
+    expected = (r"TrainConfig.K=5 but the model's K=1; TrainConfig.hidden=\[256, 256, 256\] but the model's "
+                r"hidden=\[8\]; TrainConfig.L=7 but RoundBuffers.L=3")
+    with pytest.raises(ValueError, match=expected):
+        FTMLTrainer(DynamicsModel(K=1, hidden=(8,)), buffers, config)
+    with pytest.raises(ValueError, match=expected):
+        EnsembleTrainer(lambda: DynamicsModel(K=1, hidden=(8,)), buffers, config, size=2)
+    with pytest.raises(ValueError, match=r"TrainConfig.context=0 but the model's context=2"):
+        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), context=2), buffers, TrainConfig(K=1, hidden=[8], L=3))
+    with pytest.raises(ValueError, match=r"TrainConfig.road=0 but the model's road=4"):
+        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), road=4), buffers, TrainConfig(K=1, hidden=[8], L=3))
+    trainer = FTMLTrainer(DynamicsModel(K=1, hidden=(8,)), buffers, TrainConfig(K=1, hidden=[8], L=3, batch=4))
+    FTMLTrainer(DynamicsModel(K=1, hidden=(8,), road=4), buffers, TrainConfig(L=3).for_model(  # a saved model's
+        DynamicsModel(K=1, hidden=(8,), road=4).config()))
+    trainer.fit_normalization()
+    assert len(trainer.train(1, meta=True)) == 1  # a consistent one trains

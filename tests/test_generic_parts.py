@@ -103,3 +103,92 @@ def test_history_window_refuses_an_action_outside_its_range(bad):
     window = HistoryWindow(K=2, n_actions=7)
     with pytest.raises(ValueError, match=r"action out of range \[0, 6\]"):
         window.next_window(torch.zeros(3, 2, 21), torch.tensor([0, bad, 1]), torch.zeros(3, 14))
+
+
+# ----- RoundBuffers with trajectories shorter than L (issue #40) ---------------------------------------
+def _numbered(start: int, T: int, K: int = 1) -> TensorDict:
+    """A 4-d ``[T]`` trajectory whose first observation entry is its global step number ``start + t``."""
+    obs = torch.zeros(T, 4)
+    obs[:, 0] = torch.arange(start, start + T, dtype=torch.float32)
+    obs[:, 1:] = torch.randn(T, 3, generator=torch.Generator().manual_seed(start))
+    return TensorDict({"observation": obs, "action": torch.arange(T) % 2, "history": torch.randn(T, K, 6),
+                       ("next", "observation"): obs + 0.1}, [T])
+
+
+def test_round_buffers_skip_trajectories_shorter_than_L_and_count_them(caplog):
+    from pernav.trainer import RoundBuffers
+
+    buffers = RoundBuffers(L=10, seed=0)
+    buffers.add(0, _numbered(0, 5), tau=True)  # the round's tau may be short: it is still stored and adapted on
+    with caplog.at_level("WARNING", logger="pernav.trainer"):
+        buffers.add(0, _numbered(5, 40))
+        buffers.add(0, _numbered(45, 3))
+    assert "shorter than L=10" in caplog.text
+    assert buffers.short == {0: 2} and buffers.lengths == {0: [5, 40, 3]} and len(buffers.data(0)) == 48
+    windows = buffers.sample(0, 64)
+    assert windows.shape == (64, 10)
+    step = windows["observation"][..., 0]
+    assert ((step >= 5) & (step < 45)).all() and (step.diff(dim=1) == 1).all()  # all from the 40-step one
+
+
+def test_ftml_trains_on_short_random_episodes_beside_longer_ones():
+    from pernav.trainer import FTMLTrainer, RoundBuffers, TrainConfig
+
+    buffers, g, start = RoundBuffers(L=10, seed=0), torch.Generator().manual_seed(0), 0
+    for r in range(3):  # random-policy CartPole-like episodes of 9-13 steps
+        for e in range(4):
+            T = 13 if e == 1 else int(torch.randint(9, 14, (), generator=g))
+            buffers.add(r, _numbered(start, T), tau=e == 0)
+            start += T
+    model = DynamicsModel(state_dim=4, n_actions=2, K=1, hidden=(8,), delta="plain")
+    trainer = FTMLTrainer(model, buffers, TrainConfig(batch=8, L=10, K=1, hidden=[8]), seed=0)
+    trainer.fit_normalization()
+    losses = trainer.train(3, meta=False) + trainer.train(3, meta=True)
+    assert len(losses) == 6 and all(torch.isfinite(torch.tensor(losses)))
+
+
+def test_round_buffers_refuse_a_round_without_a_trajectory_of_L_steps():
+    from pernav.trainer import RoundBuffers
+
+    buffers = RoundBuffers(L=10, seed=0)
+    buffers.add(0, _numbered(0, 5), tau=True)
+    buffers.add(0, _numbered(5, 7))
+    buffers.add(1, _numbered(12, 10))
+    with pytest.raises(ValueError, match=r"round 0 has no trajectory of L=10 steps.*lengths: \[5, 7\]"):
+        buffers.sample(0, 4)
+    assert buffers.sample(1, 4).shape == (4, 10)  # exactly L is enough
+
+
+def test_round_buffers_sample_long_trajectories_as_before(tmp_path):
+    """With every trajectory at least L long, the windows are those of the sampler before short trajectories
+    were skipped (strict_length=False), draw for draw: the study's results depend on them."""
+    from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
+
+    from pernav.trainer import RoundBuffers
+
+    def filled(cls_buffers: RoundBuffers) -> RoundBuffers:
+        start = 0
+        for r, lengths in ((0, (12, 5, 30)), (1, (4, 9))):
+            for k, T in enumerate(lengths):
+                cls_buffers.add(r, _numbered(start, T), tau=k == 0)
+                start += T
+        return cls_buffers
+
+    buffers = filled(RoundBuffers(L=4, seed=7))
+    # the starts drawn by the code before this change (recorded), and the same draws replayed with its sampler
+    starts = [buffers.sample(r, 3)["observation"][:, 0, 0].long().tolist() for r in (0, 1, 0)]
+    assert starts == [[13, 36, 13], [52, 53, 56], [0, 0, 12]]
+    buffers, old = filled(RoundBuffers(L=4, seed=7)), {}
+    for r in buffers.rounds:
+        old[r] = TensorDictReplayBuffer(storage=LazyTensorStorage(buffers.capacity),
+                                        sampler=SliceSampler(slice_len=4, traj_key="traj", strict_length=False))
+        old[r].extend(buffers.data(r))
+    generator = torch.Generator().manual_seed(7)
+    for r in (0, 1, 1, 0, 0, 1):
+        with torch.random.fork_rng():
+            torch.manual_seed(int(torch.randint(2**62, (), generator=generator)))
+            expected = old[r].sample(batch_size=16 * 4).reshape(16, 4)
+        got = buffers.sample(r, 16)
+        assert torch.equal(got["observation"], expected["observation"]) and torch.equal(got["traj"], expected["traj"])
+    buffers.save(tmp_path / "rb")
+    assert RoundBuffers.load(tmp_path / "rb").lengths == buffers.lengths

@@ -130,3 +130,19 @@ def test_imagined_env_passes_check_env_specs_and_stops_rewarding_after_done() ->
         first = model(start["history"], rollout["action"][:, 0])
     assert torch.allclose(rollout["next", "reward"][:, 0, 0], -first.pow(2).sum(-1))
     assert DiscreteTreeSearchPlanner(env, 2)(start.clone())["action"].shape == (4,)
+
+
+def test_cartpole_recipe_help_shows_every_default(capsys) -> None:
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("cartpole_meta", RECIPE)
+    recipe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(recipe)
+    with pytest.raises(SystemExit):
+        recipe.main(["--help"])
+    text = " ".join(capsys.readouterr().out.split())  # the help's line wrapping undone
+    for option, default in (("--seeds", "[0, 1, 2, 3, 4]"), ("--offline-episodes", "4"), ("--max-steps", "150"),
+                            ("--horizon", "6"), ("--L", "3"), ("--alpha", "0.05"), ("--warm-updates", "300"),
+                            ("--online-updates", "30")):
+        assert f"{option} " in text and f"(default: {default})" in text, option
+    assert text.count("(default: ") == 13  # every option but the positional folder and --help

@@ -85,7 +85,8 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             wide as the tree is the exhaustive search.
         reward_key: where the env's step writes its reward (``("next", "reward")`` for TorchRL envs).
         mask_key: an input entry of booleans, ``[..., A]`` or ``[..., H', A]`` (level ``h`` reads row ``h``):
-            actions it forbids are not expanded. ``None``: every action is allowed.
+            actions it forbids are not expanded (a root with none allowed at a level: ``ValueError``). ``None``:
+            every action is allowed.
         value_module: optional ``TensorDictModule`` reading a leaf's state and writing ``value_key``, added to
             the return of each complete sequence (a terminal value; not applied after ``done``).
         value_key: where ``value_module`` writes.
@@ -211,15 +212,19 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         evaluations = 0
         for level in range(H):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
+            level_allowed = self.allowed(roots, level, mask)  # [B, A]
             if B == 1:  # one root (a deployed planner): every node is real, each expands the same actions
-                actions = self.allowed(roots, level, mask)[0].nonzero().squeeze(-1)
-                keep = None if actions.numel() else torch.zeros(1, 1, dtype=torch.bool)
-                actions = actions if actions.numel() else torch.zeros(1, dtype=torch.long)
+                actions = level_allowed[0].nonzero().squeeze(-1)
+                if not actions.numel():
+                    self._refuse_unplannable(level_allowed, level)
+                keep = None
                 k = parent_count * actions.numel()
                 index = torch.arange(parent_count).repeat_interleave(actions.numel())
                 parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
             else:
-                allowed = (valid.unsqueeze(-1) & self.allowed(roots, level, mask).unsqueeze(1)).reshape(B, -1)  # [B, N*A]
+                if not bool(level_allowed.any(-1).all()):
+                    self._refuse_unplannable(level_allowed, level)
+                allowed = (valid.unsqueeze(-1) & level_allowed.unsqueeze(1)).reshape(B, -1)  # [B, N*A]
                 k = max(int(allowed.sum(-1).max()), 1)
                 pick = torch.argsort((~allowed).to(torch.int8), dim=-1, stable=True)[:, :k]  # allowed first, in order
                 keep = allowed.gather(-1, pick)
@@ -268,6 +273,14 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             log.warning("DiscreteTreeSearchPlanner: %d non-finite sequence returns", int((~finite).sum()))
         best = torch.nan_to_num(ret, nan=float("-inf")).argmax(-1)  # the first best: ties go to the lower sequence
         return SearchResult(seqs[torch.arange(B), best], ret[torch.arange(B), best], evaluations)
+
+    def _refuse_unplannable(self, allowed: torch.Tensor, level: int) -> None:
+        """Raise for roots whose ``allowed`` ``[B, A]`` row is all false: no sequence exists there, and the search
+        would return action 0 with a return of -inf as if it were a plan."""
+        roots = (~allowed.any(-1)).nonzero().squeeze(-1).tolist()
+        raise ValueError(f"{type(self).__name__}: no allowed action at level {level} for root(s) {roots} (flat "
+                         f"index into the input's batch) of {allowed.shape[0]}; the mask ({self.mask_key!r}) must "
+                         "allow at least one action per root and level")
 
     def planning(self, td: TensorDictBase) -> torch.Tensor:
         missing = [k for k in self.in_keys if k not in td.keys(True, True)]

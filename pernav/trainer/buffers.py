@@ -2,7 +2,9 @@
 
 Each round's buffer stores the round's transitions with ``"round"`` and ``"traj"`` metadata (a globally
 unique trajectory id) and samples contiguous ``[L]`` windows with a ``SliceSampler`` keyed on ``"traj"``,
-so a window never crosses the end of a trajectory. The round's adaptation trajectory ``tau_t`` is kept
+so a window never crosses the end of a trajectory. A trajectory shorter than ``L`` is stored (it is still data,
+and may be a round's tau) but :meth:`RoundBuffers.sample` never draws from it: it holds no whole window. ``short``
+counts those per round. The round's adaptation trajectory ``tau_t`` is kept
 apart (:meth:`RoundBuffers.tau`), and so are the round's user's calibration drives, if any
 (:meth:`RoundBuffers.user_trajectories`: tau and those). Everything saves to and loads from a folder.
 
@@ -24,6 +26,7 @@ Example:
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import torch
@@ -33,6 +36,8 @@ from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 from pernav.model.dynamics import road_of
 
 __all__ = ["KEYS", "RoundBuffers"]
+
+log = logging.getLogger("pernav.trainer")
 
 #: The entries of a transition that the model needs (everything else is dropped when stored); a trajectory with
 #: the env's ``"route_ahead"`` also keeps ``"road"``, its first ``ROAD_MAX`` road points (:func:`road_of`).
@@ -46,6 +51,10 @@ class RoundBuffers:
         L: window length of :meth:`sample` (the L of the L-step loss).
         capacity: transitions per round.
         seed: seed of the sampling generator (sampling is reproducible given the call sequence).
+
+    Attributes:
+        lengths: each round's trajectory lengths, in the order added.
+        short: each round's number of trajectories shorter than ``L``, which :meth:`sample` skips.
     """
 
     def __init__(self, L: int = 5, capacity: int = 10_000, seed: int = 0) -> None:
@@ -53,12 +62,20 @@ class RoundBuffers:
         self.buffers: dict[int, TensorDictReplayBuffer] = {}
         self.taus: dict[int, TensorDictBase] = {}
         self.calibration: dict[int, list[TensorDictBase]] = {}
+        self.lengths: dict[int, list[int]] = {}
         self.n_traj = 0
         self.generator = torch.Generator().manual_seed(seed)
 
     def _new_buffer(self) -> TensorDictReplayBuffer:
+        # strict_length: a trajectory shorter than L would give a short slice and break the [n, L] reshape; the
+        # strict sampler leaves it out. With every trajectory at least L long both draw the same windows
         return TensorDictReplayBuffer(storage=LazyTensorStorage(self.capacity),
-                                      sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=False))
+                                      sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=True))
+
+    @property
+    def short(self) -> dict[int, int]:
+        """Per round, the trajectories shorter than ``L`` (stored, never sampled)."""
+        return {r: sum(T < self.L for T in lengths) for r, lengths in self.lengths.items()}
 
     @property
     def rounds(self) -> list[int]:
@@ -83,6 +100,10 @@ class RoundBuffers:
         data.set("traj", torch.full((T,), self.n_traj, dtype=torch.long))
         self.n_traj += 1
         self.buffers.setdefault(round_, self._new_buffer()).extend(data)
+        self.lengths.setdefault(round_, []).append(T)
+        if T < self.L:
+            log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
+                        "round)", round_, T, self.L, self.short[round_])
         if tau:
             self.taus[round_] = data
         if calibration:
@@ -113,9 +134,13 @@ class RoundBuffers:
         return buffer.storage[: len(buffer)]
 
     def sample(self, round_: int, n_windows: int) -> TensorDictBase:
-        """``[n_windows, L]`` contiguous windows of round ``round_`` (never across a trajectory end)."""
+        """``[n_windows, L]`` contiguous windows of round ``round_`` (never across a trajectory end, never from a
+        trajectory shorter than ``L``); ``ValueError`` if the round has no trajectory of ``L`` steps or more."""
         if round_ not in self.buffers:
             raise KeyError(f"round {round_} has no data; rounds: {self.rounds}")
+        if max(self.lengths[round_]) < self.L:
+            raise ValueError(f"round {round_} has no trajectory of L={self.L} steps or more to sample windows from; "
+                             f"its trajectory lengths: {self.lengths[round_]}")
         with torch.random.fork_rng():
             torch.manual_seed(int(torch.randint(2**62, (), generator=self.generator)))
             sample = self.buffers[round_].sample(batch_size=n_windows * self.L)
@@ -156,6 +181,8 @@ class RoundBuffers:
             buffer = out._new_buffer()
             buffer.loads(folder / f"round_{r}")
             out.buffers[int(r)] = buffer
+            # the lengths from the stored trajectory ids (not in the manifest: older checkpoints lack them)
+            out.lengths[int(r)] = torch.unique_consecutive(out.data(int(r))["traj"], return_counts=True)[1].tolist()
         for r in meta["taus"]:
             out.taus[int(r)] = TensorDict.load_memmap(folder / f"tau_{r}").clone()
         for r, n in meta.get("calibration", {}).items():  # absent in checkpoints written before calibration

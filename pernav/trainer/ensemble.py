@@ -16,7 +16,8 @@ Example:
     >>> T = 20
     >>> buffers.add(0, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
     ...     "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]), tau=True)
-    >>> ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3), size=2)
+    >>> ens = EnsembleTrainer(lambda: DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3, hidden=[16]),
+    ...                       size=2)
     >>> ens.fit_normalization()
     >>> len(ens.train(2, meta=False)), len(ens.parameters(buffers.tau(0), adapted=True, alpha=0.01))
     (2, 2)
@@ -30,7 +31,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.adapt import adapt, meta_parameters
+from pernav.model.adapt import LossFn, adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
@@ -48,10 +49,13 @@ class EnsembleTrainer:
         config: the members' hyperparameters.
         size: members.
         seed: base seed (member ``i`` uses ``seed + i`` for its initialization and its sampling).
+        loss_fn: the loss of the updates, of ``U`` and of the round loss, as :class:`FTMLTrainer`'s (the paper's
+            L-step loss by default). With several members it gets their stacked parameters (``params`` with a
+            batch dimension ``[E]``, it returns ``[E]``) and, when trajectories are weighted, ``weights=``.
     """
 
     def __init__(self, make_model: Callable[[], DynamicsModel], buffers: RoundBuffers, config: TrainConfig,
-                 size: int = 1, seed: int = 0) -> None:
+                 size: int = 1, seed: int = 0, loss_fn: LossFn = multistep_loss) -> None:
         if size < 1:
             raise ValueError(f"ensemble size must be >= 1, got {size}")
         self.members: list[FTMLTrainer] = []
@@ -59,19 +63,20 @@ class EnsembleTrainer:
             with torch.random.fork_rng():
                 torch.manual_seed(seed + i)
                 model = make_model()
-            self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i))
-        self.config = config
+            self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i, loss_fn=loss_fn))
+        self.config, self.loss_fn = config, loss_fn
         # [E, trajectories]: each member's weight of each trajectory of ``buffers`` (bootstrap counts, set by
         # fine_tuned(..., bootstrap=True)); None: every window weighs the same for every member
         self.trajectory_weights: torch.Tensor | None = None
 
     @classmethod
     def from_states(cls, config: dict[str, Any], states: list[dict[str, Any]], train: TrainConfig,
-                    buffers: RoundBuffers | None = None, seed: int = 0) -> EnsembleTrainer:
+                    buffers: RoundBuffers | None = None, seed: int = 0,
+                    loss_fn: LossFn = multistep_loss) -> EnsembleTrainer:
         """An ensemble of ``DynamicsModel(**config)`` members starting from ``states`` (their state dicts,
         normalization included), e.g. a finished study's (:func:`pernav.study.runner.final_models`)."""
         out = cls(lambda: DynamicsModel(**config), buffers if buffers is not None else RoundBuffers(L=train.L),
-                  train, size=len(states), seed=seed)
+                  train, size=len(states), seed=seed, loss_fn=loss_fn)
         for member, state in zip(out.members, states, strict=True):
             member.model.load_state_dict(state)
         return out
@@ -122,9 +127,11 @@ class EnsembleTrainer:
         total = torch.zeros(len(self.members))
         for r, n, batch in batches:
             used = (adapt(model, self.buffers.tau(r), alpha=cfg.alpha, L=cfg.L, first_order=cfg.first_order,
-                          params=params, max_norm=cfg.max_grad_norm) if meta else params)
-            weights = None if self.trajectory_weights is None else self.trajectory_weights[:, batch["traj"][:, 0]]
-            total = total + multistep_loss(model, batch, params=used, weights=weights) * (n / cfg.batch)
+                          params=params, max_norm=cfg.max_grad_norm, loss_fn=self.loss_fn) if meta else params)
+            # weights only when set (bootstrap): a loss without a weights argument works everywhere else
+            weights = {} if self.trajectory_weights is None else {
+                "weights": self.trajectory_weights[:, batch["traj"][:, 0]]}
+            total = total + self.loss_fn(model, batch, params=used, **weights) * (n / cfg.batch)
         values = total.detach()
         for m in self.members:
             m.optimizer.zero_grad(set_to_none=True)
@@ -144,7 +151,8 @@ class EnsembleTrainer:
             if adapted:
                 with torch.enable_grad():
                     out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True,
-                                     max_norm=self.config.max_grad_norm, backtrack=backtrack).detach())
+                                     max_norm=self.config.max_grad_norm, backtrack=backtrack,
+                                     loss_fn=self.loss_fn).detach())
             else:
                 out.append(meta_parameters(m.model).detach().clone())
         return out
@@ -168,7 +176,8 @@ class EnsembleTrainer:
         if not 0.0 <= replay < 1.0 or (replay and bootstrap):
             raise ValueError(f"replay must be in [0, 1) and cannot be combined with bootstrap; got {replay}")
         twin = EnsembleTrainer.from_states(self.model.config(), [m.model.state_dict() for m in self.members],
-                                           self.config, RoundBuffers.of(trajectories, self.config.L, seed), seed)
+                                           self.config, RoundBuffers.of(trajectories, self.config.L, seed), seed,
+                                           self.loss_fn)
         if bootstrap:
             n, generator = len(trajectories), torch.Generator().manual_seed(seed)
             draws = torch.randint(n, (len(self.members), n), generator=generator)

@@ -20,7 +20,7 @@ Example:
     ...     T = 20
     ...     buffers.add(r, TensorDict({"observation": torch.randn(T, 14), "action": torch.randint(7, (T,)),
     ...         "history": torch.randn(T, 5, 21), ("next", "observation"): torch.randn(T, 14)}, [T]), tau=True)
-    >>> trainer = FTMLTrainer(DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3), seed=0)
+    >>> trainer = FTMLTrainer(DynamicsModel(hidden=(16,)), buffers, TrainConfig(batch=8, L=3, hidden=[16]), seed=0)
     >>> trainer.fit_normalization()
     >>> loss = trainer.meta_update()
     >>> bool(torch.isfinite(torch.tensor(loss)))
@@ -33,7 +33,7 @@ import copy
 import json
 import logging
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 import torch
@@ -44,7 +44,7 @@ from pernav.model.dynamics import ROAD_MAX, DynamicsModel, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
 
-__all__ = ["FTMLTrainer", "TrainConfig"]
+__all__ = ["FTMLTrainer", "TrainConfig", "check_consistent"]
 
 log = logging.getLogger("pernav.trainer")
 
@@ -89,6 +89,11 @@ class TrainConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def for_model(self, model_config: dict[str, Any]) -> TrainConfig:
+        """A copy with the model fields (``MODEL_FIELDS``) of ``model_config`` (a ``DynamicsModel.config()``, e.g.
+        a study's saved model), so a trainer accepts that model."""
+        return replace(self, **{k: _plain(model_config[k]) for k in MODEL_FIELDS if k in model_config})
+
     def with_options(self, pairs: list[str]) -> TrainConfig:
         """A copy with ``KEY=VALUE`` strings applied (JSON values of each field's type: an int, a number, null
         where the default is null or the field is optional, a list of ints for ``hidden``); ``ValueError``
@@ -131,15 +136,39 @@ class TrainConfig:
 
 _OPTIONAL = ("max_grad_norm", "backtrack")  # the train options that may be null (off)
 
+#: The TrainConfig fields that describe the model (``DynamicsModel.config()`` keys of the same names). The trainer
+#: itself never reads them, so a model built otherwise would train silently against the config's word.
+MODEL_FIELDS = ("K", "hidden", "road", "context")
+
+
+def check_consistent(model: torch.nn.Module, buffers: RoundBuffers, config: TrainConfig) -> None:
+    """``ValueError`` naming every field where ``model`` (its ``config()``, where it has one) or ``buffers``
+    (their ``L``) disagree with ``config``."""
+    built = model.config() if callable(getattr(model, "config", None)) else {}
+    wrong = [f"TrainConfig.{name}={getattr(config, name)!r} but the model's {name}={built[name]!r}"
+             for name in MODEL_FIELDS
+             if name in built and _plain(built[name]) != _plain(getattr(config, name))]
+    if buffers.L != config.L:  # adapt() would use the config's L while the buffers sample windows of theirs
+        wrong.append(f"TrainConfig.L={config.L} but RoundBuffers.L={buffers.L}")
+    if wrong:
+        raise ValueError("the trainer's TrainConfig disagrees with its model or buffers: " + "; ".join(wrong)
+                         + " (build them from the same config)")
+
+
+def _plain(value: Any) -> Any:
+    return [int(v) for v in value] if isinstance(value, (list, tuple)) else value
+
 
 class FTMLTrainer:
     """Owns one model, its Adam optimizer and its data stream (``RoundBuffers``).
 
     Any :class:`~pernav.model.dynamics.DynamicsModel` (any state size and ``delta``); ``loss_fn`` is the loss
-    of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default)."""
+    of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default). The model's
+    ``K``, ``hidden``, ``road`` and ``context`` and the buffers' ``L`` must be the config's (``ValueError``)."""
 
     def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0,
                  loss_fn: LossFn = multistep_loss) -> None:
+        check_consistent(model, buffers, config)
         self.model, self.buffers, self.config, self.loss_fn = model, buffers, config, loss_fn
         self.optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         self.generator = torch.Generator().manual_seed(seed)
