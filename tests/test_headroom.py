@@ -152,3 +152,17 @@ def test_judge_computes_the_preregistered_figures_on_known_episodes(tmp_path) ->
     assert json.loads((out / "judged.json").read_text())["late"]["gap_closed"]["mean"] == pytest.approx(0.8)
     assert main(["judge", *map(str, files), "--out", str(out)]) == 2  # nothing is overwritten
     assert main(["judge", str(tmp_path / "missing"), "--out", str(tmp_path / "o2")]) == 2
+
+
+def test_the_sweep_shifts_only_the_average_drivers_reaction_time() -> None:
+    from pernav.study.headroom import SWEEP_SHIFTS, sweep_schedule
+    from pernav.world.drivers import POPULATION_AVERAGE
+
+    online = [e for e in sweep_schedule() if e.phase == "online"]
+    assert [round(e.profile().reaction_time - POPULATION_AVERAGE.reaction_time, 2) for e in online] == \
+        list(SWEEP_SHIFTS)
+    for e in online:
+        others = {k: v for k, v in e.profile().to_dict().items() if k != "reaction_time"}
+        assert others == {k: v for k, v in POPULATION_AVERAGE.to_dict().items() if k != "reaction_time"}
+        assert e.context() == Context()
+    preset("personal_sweep").validate()
