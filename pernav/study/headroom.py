@@ -233,7 +233,10 @@ def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...
 
     pairs = episodes(results)
     towns = sorted({k[1] for k in pairs})
-    labels = [e.label for e in sweep_schedule() if e.phase == "online"]
+    online = [e for e in sweep_schedule() if e.phase == "online"]
+    labels = [e.label for e in online]
+    on_time_up_to = max(shift for shift, e in zip(SWEEP_SHIFTS, online, strict=True)
+                        if lateness(resolve(e.profile(), e.context()))["excess"] < LATE_EXCESS)
     data: dict[str, Any] = {}
     fig, axes = plt.subplots(1, len(towns), figsize=(5.5 * len(towns), 4), squeeze=False)
     for ax, town in zip(axes[0], towns, strict=True):
@@ -254,7 +257,8 @@ def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...
         ax.set_title(town)
         ax.set_xlabel("reaction time − the average driver's (s)")
         ax.set_ylabel("tracking cost per route")
-        ax.axvspan(-0.45, 0.45, color="0.9", zorder=0)
+        ax.axvspan(min(SWEEP_SHIFTS) - 0.05, on_time_up_to + 0.2, color="0.92", zorder=0,
+                   label="on time (classified)")
         ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
