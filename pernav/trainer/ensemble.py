@@ -55,7 +55,7 @@ class EnsembleTrainer:
     """
 
     def __init__(self, make_model: Callable[[], DynamicsModel], buffers: RoundBuffers, config: TrainConfig,
-                 size: int = 1, seed: int = 0, loss_fn: LossFn = multistep_loss) -> None:
+                 size: int = 1, seed: int = 0, loss_fn: LossFn | None = None) -> None:
         if size < 1:
             raise ValueError(f"ensemble size must be >= 1, got {size}")
         self.members: list[FTMLTrainer] = []
@@ -64,15 +64,21 @@ class EnsembleTrainer:
                 torch.manual_seed(seed + i)
                 model = make_model()
             self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i, loss_fn=loss_fn))
-        self.config, self.loss_fn = config, loss_fn
+        self.config, self._loss_fn = config, loss_fn
         # [E, trajectories]: each member's weight of each trajectory of ``buffers`` (bootstrap counts, set by
         # fine_tuned(..., bootstrap=True)); None: every window weighs the same for every member
         self.trajectory_weights: torch.Tensor | None = None
 
+    @property
+    def loss_fn(self) -> LossFn:
+        """The loss given, or (None) this module's ``multistep_loss``, looked up at each use so that a patched
+        module function (the reliability tests' NaN loss) is the one called."""
+        return self._loss_fn if self._loss_fn is not None else multistep_loss
+
     @classmethod
     def from_states(cls, config: dict[str, Any], states: list[dict[str, Any]], train: TrainConfig,
                     buffers: RoundBuffers | None = None, seed: int = 0,
-                    loss_fn: LossFn = multistep_loss) -> EnsembleTrainer:
+                    loss_fn: LossFn | None = None) -> EnsembleTrainer:
         """An ensemble of ``DynamicsModel(**config)`` members starting from ``states`` (their state dicts,
         normalization included), e.g. a finished study's (:func:`pernav.study.runner.final_models`)."""
         out = cls(lambda: DynamicsModel(**config), buffers if buffers is not None else RoundBuffers(L=train.L),
