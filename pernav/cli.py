@@ -25,6 +25,7 @@ from pernav.planner.factory import parse_planner_options
 from pernav.study.config import COLLECT, LEARNERS, METHODS
 from pernav.study.errors import CheckpointError
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
+from pernav.world.files import key_values
 from pernav.world.layout import PLAYBACK
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
@@ -389,14 +390,14 @@ def _study(args: argparse.Namespace) -> None:
         raise UsageError(f"--planner-option {exc}") from None
     if args.methods is not None:
         cfg.methods = [m for m in METHODS if m in args.methods]
-    for pair in args.timing_option:
-        key, _, value = pair.partition("=")
-        if key not in cfg.timing:
-            raise UsageError(f"--timing-option: unknown option {key!r}; allowed: {', '.join(cfg.timing)}")
-        try:
-            cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
-        except ValueError:
-            raise UsageError(f"--timing-option {key}: {value!r} is not a number") from None
+    try:
+        timing = key_values(args.timing_option, list(cfg.timing), "the timing options")
+    except ValueError as exc:
+        raise UsageError(f"--timing-option {exc}") from None
+    for key, value, pair in timing:
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise UsageError(f"--timing-option {pair!r}: VALUE must be a number")
+        cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau is not None:

@@ -10,12 +10,12 @@ Example:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from typing import Any
 
 from pernav.planner.retiming import RetimingPlanner
 from pernav.planner.tree_search import TreeSearchPlanner
+from pernav.world.files import key_values
 
 __all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_config", "parse_planner_options"]
 
@@ -75,15 +75,8 @@ def parse_planner_options(kind: str, pairs: list[str]) -> dict[str, Any]:
     if kind not in PLANNER_DEFAULTS:
         raise ValueError(f"unknown planner kind {kind!r}; choose one of {', '.join(PLANNER_KINDS)}")
     out: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, raw = pair.partition("=")
-        if not sep or key not in PLANNER_DEFAULTS[kind]:
-            raise ValueError(f"{pair!r}: need KEY=VALUE with KEY one of the {kind} planner's options: "
-                             f"{', '.join(PLANNER_DEFAULTS[kind])}")
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw  # not JSON: refused below, like a JSON string or list
+    for key, value, pair in key_values(pairs, PLANNER_DEFAULTS[kind], f"the {kind} planner's options"):
+        # not JSON, a JSON string or a list: refused like any value that is no number
         if value is not None and not isinstance(value, (int, float)):
             raise ValueError(f"{pair!r}: VALUE must be a number, true/false or null")
         out[key] = value

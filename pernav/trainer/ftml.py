@@ -30,7 +30,6 @@ Example:
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -43,6 +42,7 @@ from pernav.model.adapt import LossFn, adapt, trajectory_windows
 from pernav.model.dynamics import ROAD_MAX, DynamicsModel, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
+from pernav.world.files import key_values
 
 __all__ = ["FTMLTrainer", "TrainConfig", "check_consistent"]
 
@@ -104,14 +104,7 @@ class TrainConfig:
         """
         out = copy.deepcopy(self)
         names = [f.name for f in fields(self)]
-        for pair in pairs:
-            key, sep, raw = pair.partition("=")
-            if not sep or key not in names:
-                raise ValueError(f"{pair!r}: need KEY=VALUE with KEY one of the train options: {', '.join(names)}")
-            try:
-                value = json.loads(raw)
-            except json.JSONDecodeError:
-                value = raw
+        for key, value, pair in key_values(pairs, names, "the train options"):
             default = getattr(TrainConfig(), key)
             if key == "hidden":
                 ok = isinstance(value, list) and value and all(isinstance(v, int) and v > 0 for v in value)
