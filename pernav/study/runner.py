@@ -34,6 +34,7 @@ import os
 import random
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -260,6 +261,25 @@ def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any
 
 
 # ----- the town job -----------------------------------------------------------------------------------
+@dataclass
+class _Town:
+    """What every round of one town's run reads and writes."""
+
+    cfg: StudyConfig
+    town: str
+    learners: dict[str, Learner]
+    state: dict[str, Any]
+    executor: Any
+    first_online: int
+
+    @property
+    def profile(self) -> dict[str, float]:
+        return self.state["profile"]
+
+    def seed(self, *parts: Any) -> int:
+        return derive_seed(self.cfg.seed, self.town, *parts)
+
+
 def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False, position: int = 0,
              executor: Any = None) -> dict[str, Any]:
     """Run Algorithm 1 for every method in ``town``; returns the town's per-entry results.
@@ -267,124 +287,163 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     ``executor`` (:mod:`pernav.study.parallel`) runs the evaluation episodes (here, in order, by default).
     """
     torch.set_num_threads(1)
-    executor = executor or SerialExecutor()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     out = Path(out)
     ckpt_dir = out / "checkpoints" / town
     entries = cfg.entries_for(town)
-    methods = cfg.methods
-    names = [m for m in LEARNERS if m in methods or (m == "adapt" and "hindsight" in methods)]
+    names = [m for m in LEARNERS if m in cfg.methods or (m == "adapt" and "hindsight" in cfg.methods)]
     learners = {name: Learner(name, cfg, town) for name in names}
     state = load_checkpoint(ckpt_dir, learners) if resume else None
     if state is None:
         state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "unadapted_losses": {}, "timing": {},
                  "profile": {}}
-    profile = state["profile"]
-    routes = list(range(cfg.routes))
+    run = _Town(cfg, town, learners, state, executor or SerialExecutor(),
+                next(i for i, e in enumerate(entries) if e.phase == "online"))
     from torchrl.record.loggers import CSVLogger
 
     logger = CSVLogger(exp_name=town, log_dir=str(out / "logs"))
     bar = tqdm(total=len(entries), initial=state["next"], desc=f"{town} rounds", position=position, leave=False)
-    first_online = next(i for i, e in enumerate(entries) if e.phase == "online")
     for index in range(state["next"], len(entries)):
         entry = entries[index]
         t0 = time.perf_counter()
-        rng = random.Random(derive_seed(cfg.seed, town, entry.label))
+        rng = random.Random(run.seed(entry.label))
         record: dict[str, Any] = {"label": entry.label, "phase": entry.phase, "methods": {}}
         if entry.drives:  # recorded drives: the round's data, nothing simulated (docs/study.md)
-            with _Timer(profile, "collection_s"):
+            with _Timer(run.profile, "collection_s"):
                 _add_recorded(entry, town, index, learners)
         if entry.phase == "offline":
-            if not entry.drives:
-                _collect_offline(cfg, town, entry, index, rng, learners, record, profile)
-            if index + 1 == first_online:
-                with _Timer(profile, "training_s"):
-                    _warm_start(cfg, learners)
-                if "timing" in methods:
-                    with _Timer(profile, "timing_offline_s"):
-                        state["timing_model"] = _fit_timing(cfg, town).state_dict()
-                state["warm"] = copy.deepcopy({k: v.state() for k, v in learners.items()})  # not live tensors
-        elif entry.drives:  # a person cannot drive every method's episodes: a round of data, losses and updates
-            if "adapt" in learners:
-                seed = derive_seed(cfg.seed, town, entry.label, "adapt", "personal")
-                _round_losses(cfg, state, entry, index, learners["adapt"], learners["adapt"].adapted(index, cfg, seed))
-            with _Timer(profile, "training_s"):
-                for learner in learners.values():
-                    learner.trainer.train(cfg.train.updates, meta=learner.meta)
+            _offline_round(run, entry, index, rng, record)
+        elif entry.drives:
+            _recorded_round(run, entry, index)
         else:
-            tau_route = rng.randrange(10)
-            with _Timer(profile, "collection_s"):
-                tau_seed = derive_seed(cfg.seed, town, entry.label, "tau")
-                tau = episode(cfg, town, entry, tau_route, tau_seed, _tau_policy(cfg, tau_seed))
-            for learner in learners.values():
-                learner.add(index, tau, tau=True)
-            _calibrate(cfg, town, entry, index, learners, profile)
-            with _Timer(profile, "adaptation_s"):
-                adapted = {name: learner.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, name, "personal"))
-                           for name, learner in learners.items()}
-                if "timing" in methods:  # the timing learner's belief about this round's user, from tau alone
-                    adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
-                    state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
-                checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
-            for name, check in checks.items():
-                if check is not None:
-                    state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
-            off = {name: {"rescue": c["threshold"] if c["allowed"] else None}  # this round's rescue distance
-                   for name, c in checks.items() if c is not None}
-            jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                               *_policy_spec(method, learners, adapted), planner_options=off.get(method))
-                    for method in methods if method != "hindsight" for route in routes]
-            with _Timer(profile, "evaluation_s"):
-                metrics = executor.map(run_episode_job, jobs, desc=f"{town} {entry.label} episodes")
-            _strip_timing(metrics, profile, "evaluation")
-            for method in methods:
-                if method != "hindsight":
-                    record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
-                                                            if j.policy_name == method])
-            # data collection: K rollouts per learner, MPC w.p. 1/2 else explore, into the learner's own D_t
-            with _Timer(profile, "collection_s"):
-                planning_before = sum(learner.planner.planning_s for learner in learners.values())
-                for name, learner in learners.items():
-                    learner.planner.params = adapted[name]
-                    rescue = getattr(learner.planner, "rescue", None)
-                    if name in off:  # the rollouts rescue as this round's evaluation does
-                        learner.planner.rescue = off[name]["rescue"]
-                    for k in range(cfg.rollouts):
-                        use_mpc = rng.random() < 0.5
-                        route = rng.randrange(10)
-                        seed = derive_seed(cfg.seed, town, entry.label, name, k)
-                        policy = learner.planner if use_mpc else _collector(cfg, seed)
-                        traj = episode(cfg, town, entry, route, seed, policy, learner.n_actions)
-                        learner.buffers.add(index, traj)  # already in the learner's action space
-                    if name in off:
-                        learner.planner.rescue = rescue
-            profile["collection_planning_s"] = profile.get("collection_planning_s", 0.0) + sum(
-                learner.planner.planning_s for learner in learners.values()) - planning_before
-            # the online loss of adapt before the update (for the model-loss regret)
-            if "adapt" in learners:
-                _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
-            with _Timer(profile, "training_s"):
-                for learner in learners.values():
-                    learner.trainer.train(cfg.train.updates, meta=learner.meta)
+            _online_round(run, entry, index, rng, record)
         state["timing"][entry.label] = round(time.perf_counter() - t0, 2)
         state["results"].append(record)
         _log(logger, index, record)
         state["next"] = index + 1
-        with _Timer(profile, "checkpoint_s"):
+        with _Timer(run.profile, "checkpoint_s"):
             save_checkpoint(ckpt_dir, index, state, learners)
         bar.update(1)
     bar.close()
-    if "hindsight" in methods and "hindsight" not in state:
-        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, routes, executor)
+    if "hindsight" in cfg.methods and "hindsight" not in state:
+        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, list(range(cfg.routes)),
+                                        run.executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
+    return _town_result(run)
+
+
+def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, record: dict[str, Any]) -> None:
+    """An offline entry: explore's drives into every learner's data; after the last one, the warm start (Eq. 1)
+    and the timing learner's offline fit."""
+    cfg, state = run.cfg, run.state
+    if not entry.drives:
+        _collect_offline(cfg, run.town, entry, index, rng, run.learners, record, run.profile)
+    if index + 1 == run.first_online:
+        with _Timer(run.profile, "training_s"):
+            _warm_start(cfg, run.learners)
+        if "timing" in cfg.methods:
+            with _Timer(run.profile, "timing_offline_s"):
+                state["timing_model"] = _fit_timing(cfg, run.town).state_dict()
+        state["warm"] = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
+
+
+def _recorded_round(run: _Town, entry: Entry, index: int) -> None:
+    """An online entry of a person's recorded drives: a person cannot drive every method's episodes, so it is a
+    round of data: adapt's losses on it, then the learners' updates."""
+    learners = run.learners
+    if "adapt" in learners:
+        seed = run.seed(entry.label, "adapt", "personal")
+        _round_losses(run.cfg, run.state, entry, index, learners["adapt"], learners["adapt"].adapted(index, run.cfg,
+                                                                                                     seed))
+    _train(run)
+
+
+def _train(run: _Town) -> None:
+    with _Timer(run.profile, "training_s"):
+        for learner in run.learners.values():
+            learner.trainer.train(run.cfg.train.updates, meta=learner.meta)
+
+
+def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, record: dict[str, Any]) -> None:
+    """An online entry: the user's tau, every method adapted and evaluated on the same episodes, the learners'
+    rollouts into their own data, then their updates."""
+    cfg, town, learners, state, profile = run.cfg, run.town, run.learners, run.state, run.profile
+    tau_route = rng.randrange(10)
+    with _Timer(profile, "collection_s"):
+        tau_seed = run.seed(entry.label, "tau")
+        tau = episode(cfg, town, entry, tau_route, tau_seed, _tau_policy(cfg, tau_seed))
+    for learner in learners.values():
+        learner.add(index, tau, tau=True)
+    _calibrate(cfg, town, entry, index, learners, profile)
+    with _Timer(profile, "adaptation_s"):
+        adapted = {name: learner.adapted(index, cfg, run.seed(entry.label, name, "personal"))
+                   for name, learner in learners.items()}
+        if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
+            adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
+            state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
+        checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
+    for name, check in checks.items():
+        if check is not None:
+            state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
+    off = {name: {"rescue": c["threshold"] if c["allowed"] else None}  # this round's rescue distance
+           for name, c in checks.items() if c is not None}
+    _evaluate(run, entry, learners, adapted, off, record)
+    _rollouts(run, entry, index, rng, adapted, off)
+    # the online loss of adapt before the update (for the model-loss regret)
+    if "adapt" in learners:
+        _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
+    _train(run)
+
+
+def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: dict[str, Any],
+              off: dict[str, dict[str, Any]], record: dict[str, Any]) -> None:
+    """Every method on the round's evaluation routes, on the same episode seeds, into ``record``."""
+    methods = [m for m in run.cfg.methods if m != "hindsight"]
+    jobs = [EpisodeJob(run.cfg, run.town, entry, route, run.seed(entry.label, "eval", route),
+                       *_policy_spec(method, learners, adapted), planner_options=off.get(method))
+            for method in methods for route in range(run.cfg.routes)]
+    with _Timer(run.profile, "evaluation_s"):
+        metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} episodes")
+    _strip_timing(metrics, run.profile, "evaluation")
+    for method in methods:
+        record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
+                                                if j.policy_name == method])
+
+
+def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted: dict[str, Any],
+              off: dict[str, dict[str, Any]]) -> None:
+    """Data collection: ``rollouts`` drives per learner, its MPC w.p. 1/2 else explore, into its own D_t."""
+    cfg, learners = run.cfg, run.learners
+    with _Timer(run.profile, "collection_s"):
+        planning_before = sum(learner.planner.planning_s for learner in learners.values())
+        for name, learner in learners.items():
+            learner.planner.params = adapted[name]
+            rescue = getattr(learner.planner, "rescue", None)
+            if name in off:  # the rollouts rescue as this round's evaluation does
+                learner.planner.rescue = off[name]["rescue"]
+            for k in range(cfg.rollouts):
+                use_mpc = rng.random() < 0.5
+                route = rng.randrange(10)
+                seed = run.seed(entry.label, name, k)
+                policy = learner.planner if use_mpc else _collector(cfg, seed)
+                traj = episode(cfg, run.town, entry, route, seed, policy, learner.n_actions)
+                learner.buffers.add(index, traj)  # already in the learner's action space
+            if name in off:
+                learner.planner.rescue = rescue
+    run.profile["collection_planning_s"] = run.profile.get("collection_planning_s", 0.0) + sum(
+        learner.planner.planning_s for learner in learners.values()) - planning_before
+
+
+def _town_result(run: _Town) -> dict[str, Any]:
+    state = run.state
     diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
                           **({"rescue_checks": state["rescue_checks"][name]} if name in state.get("rescue_checks", {})
                              else {})}
-                   for name, learner in learners.items()}
+                   for name, learner in run.learners.items()}
     if "timing_beliefs" in state:
         diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
-    return {"town": town, "results": state["results"], "online_losses": state["online_losses"],
+    return {"town": run.town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
             "diagnostics": diagnostics,
             "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
