@@ -1,6 +1,7 @@
 """The ``pernav`` command line: towns, drive, bench.
 
-Bad input is reported as one line on stderr with exit code 2 (never a traceback).
+Bad input is reported as one line on stderr with exit code 2 (never a traceback). Ctrl-C ends a command with exit
+code 130 (`pernav play` and `pernav personalize` record the drive in progress first, marked stopped).
 
 Example:
     $ pernav towns --out maps/
@@ -11,15 +12,18 @@ Example:
     $ pernav play --town Town1 --route 0 --policy oracle --user user3 --record drives/
     $ pernav play --town Town1 --route 3 --policy study --study runs/default --tau drives/my-tau.pt
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/
+    $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/ --resume
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import pickle
 import sys
 from pathlib import Path
+from typing import Any
 
 from pernav.planner.factory import parse_planner_options
 from pernav.study.config import COLLECT, LEARNERS, METHODS
@@ -32,6 +36,7 @@ from pernav.world.towns import TOWN_NAMES, TownError
 
 BENCH_CHOICES = ("sim", "planner", "train", "play", "timing")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
 MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
+INTERRUPTED = 130  # exit code after Ctrl-C (128 + SIGINT, as a shell reports it), in every command
 
 
 class UsageError(ValueError):
@@ -100,10 +105,65 @@ def _check_drive_args(args: argparse.Namespace) -> dict[str, str]:
         raise UsageError(f"--traffic must be in [0, {MAX_TRAFFIC}], got {args.traffic}")
     if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
         raise UsageError(f"--record {args.record!r} exists and is not a folder")
+    if args.countdown < 0:
+        raise UsageError(f"--countdown must be >= 0 seconds, got {args.countdown}")
+    if args.joystick_axes is not None:
+        if args.input != "joystick":
+            raise UsageError("--joystick-axes goes with --input joystick")
+        from pernav.play.controls import parse_axes
+
+        parse_axes(args.joystick_axes)  # a ControlsError (one line) for a bad list
     context = {k: getattr(args, k) for k in CONTEXT_CHOICES if getattr(args, k) is not None}
     if "equipment" not in context and not args.headless:  # the oracle times its prompts for the person's device
         context["equipment"] = "wheel" if args.input == "joystick" else "keyboard"
     return context
+
+
+def _check_writable(option: str, folder: str | Path) -> None:
+    """Write (and remove) a probe file in ``folder`` before anyone drives: a folder that cannot be written is found
+    now, not after the drive. Folders made for the probe are removed again (they are made when a drive is saved)."""
+    folder = Path(folder)
+    made = [p for p in (folder, *folder.parents) if not p.exists()]
+    probe = folder / f".pernav-write-test-{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"pernav")
+    except OSError as exc:
+        raise UsageError(f"{option} {str(folder)!r} cannot be written ({exc.strerror or exc}): nothing was driven"
+                         ) from None
+    finally:
+        try:
+            probe.unlink(missing_ok=True)
+        except OSError:  # under a file: there is no probe to remove
+            pass
+        for p in made:  # deepest first
+            try:
+                p.rmdir()
+            except OSError:
+                break
+
+
+def _open_speaker(args: argparse.Namespace) -> tuple[Any, str | None]:
+    """The speaker; without sound (and without --no-audio) a warning in the terminal, and its words for the screen.
+    ``--audio`` without a device is an error (exit 2)."""
+    from pernav.play.loop import open_speaker
+
+    speaker, reason = open_speaker(args.audio)
+    if reason is None or args.headless:
+        return speaker, None
+    print(f"pernav {args.command}: warning: no sound, the prompts are shown as text only: {reason} (--audio makes "
+          "this an error, --no-audio silences this warning)", file=sys.stderr)
+    return speaker, "No sound on this computer: the prompts are shown as text only"
+
+
+def _controls(args: argparse.Namespace) -> Any:
+    """A person's controls made before any window (a joystick: a missing one or axis is exit 2 with no window);
+    keyboard controls need the window: their class is returned, made per drive."""
+    from pernav.play.controls import JoystickControls, KeyboardControls, parse_axes
+
+    if args.input == "joystick":
+        return JoystickControls(**(parse_axes(args.joystick_axes) if args.joystick_axes else {}))
+    return KeyboardControls
 
 
 def _check_learner(learner: str) -> str:
@@ -115,8 +175,8 @@ def _check_learner(learner: str) -> str:
 def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
     """``--policy study``: the study's model adapted on ``--tau`` (unadapted without); None for other policies."""
     if args.policy != "study":
-        if args.study is not None or args.tau is not None or args.learner is not None:
-            raise UsageError("--study, --tau and --learner go with --policy study")
+        if args.tau is not None or args.learner is not None:
+            raise UsageError("--tau and --learner go with --policy study")
         return None
     learner = _check_learner(args.learner or "adapt")
     if args.study is None:
@@ -126,16 +186,42 @@ def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
     if args.tau is not None and not Path(args.tau).is_file():
         raise UsageError(f"--tau {args.tau!r}: no such file")
     from pernav.play.personal import study_policy
-    from pernav.trainer.drives import load_drive
+    from pernav.trainer.drives import load_drive, read_metrics
 
-    try:
-        tau = None if args.tau is None else load_drive(args.tau)
-    except (ValueError, RuntimeError, EOFError, pickle.UnpicklingError):
-        raise UsageError(f"--tau {args.tau!r} is not a drive recorded by pernav play") from None
+    tau = None
+    if args.tau is not None:
+        try:
+            tau = load_drive(args.tau)
+            town = read_metrics(args.tau).get("town")
+        except (ValueError, OSError, RuntimeError, EOFError, pickle.UnpicklingError, AttributeError):
+            raise UsageError(f"--tau {args.tau!r} is not a drive recorded by pernav play") from None
+        if town != args.town:
+            raise UsageError(f"--tau {args.tau!r} was recorded in {town}; this drive is in {args.town} (adapt on a "
+                             f"drive of {args.town})")
     return study_policy(args.study, args.town, tau, learner=learner, seed=args.seed)
 
 
-def _play(args: argparse.Namespace) -> None:
+def _history(args: argparse.Namespace) -> int:
+    """The history window to record: the study's (``--study``), or the default study's; ``--history`` must agree
+    with a study named."""
+    from pernav.play.personal import study_history
+
+    if args.history is not None and not 1 <= args.history <= 50:
+        raise UsageError(f"--history must be in [1, 50], got {args.history}")
+    if args.study is not None:
+        k = study_history(args.study, args.town)
+        if args.history is not None and args.history != k:
+            raise UsageError(f"--history {args.history}: the study in {args.study!r} reads a history of {k} steps "
+                             f"(leave --history out, or give --history {k})")
+        return k
+    if args.history is not None:
+        return args.history
+    from pernav.study import preset
+
+    return preset("default").train.K
+
+
+def _play(args: argparse.Namespace) -> int:
     """A person drives a route (or the scripted bot, ``--headless``); checks everything before the window opens."""
     if args.policy not in PLAY_POLICIES:
         raise UsageError(f"--policy {args.policy!r}: choose one of {', '.join(PLAY_POLICIES)}")
@@ -144,23 +230,27 @@ def _play(args: argparse.Namespace) -> None:
     context = _check_drive_args(args)
     if args.screenshot is not None:
         _check_output_file("--screenshot", args.screenshot, ".png")
-    if args.history is not None and not 1 <= args.history <= 50:
-        raise UsageError(f"--history must be in [1, 50], got {args.history}")
-    if args.history is not None and args.policy == "study":
-        raise UsageError("--history: with --policy study the window is the study's own")
+    history = _history(args)
     study = _study_policy(args)
-    from pernav.play.controls import JoystickControls, KeyboardControls
-    from pernav.play.loop import PlaySession, make_speaker
+    if args.record is not None:
+        _check_writable("--record", args.record)
+    if args.screenshot is not None:
+        _check_writable("--screenshot", Path(args.screenshot).parent)
+    from pernav.play.loop import PlaySession
     from pernav.trainer.drives import save_drive
 
-    speaker = make_speaker(args.audio)  # before any window: a missing device asked for is an error
-    session = PlaySession(args.town, args.route, args.user, context=context, K=args.history,
+    speaker, notice = _open_speaker(args)  # before any window: a missing device asked for is an error
+    controls = None if args.headless else _controls(args)
+    session = PlaySession(args.town, args.route, args.user, context=context, K=history if study is None else None,
                           policy=args.policy if study is None else study[0], seed=args.seed,
                           n_traffic=args.traffic, playback=args.playback, window=not args.headless,
-                          speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at)
+                          speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at,
+                          countdown=args.countdown, hide_cost=args.hide_cost, notice=notice,
+                          title=f"{args.town} route {args.route}",
+                          calibrate=args.input == "joystick" and not args.no_calibration)
     try:
-        if not args.headless:
-            session.controls = JoystickControls() if args.input == "joystick" else KeyboardControls()
+        if controls is not None:
+            session.controls = controls() if isinstance(controls, type) else controls
         result = session.run()
     finally:
         session.close()
@@ -176,51 +266,59 @@ def _play(args: argparse.Namespace) -> None:
                           **({} if study is None else {"study": study[1]}),
                           "record": None if saved is None else str(saved),
                           "screenshot": None if session.shot is None else str(session.shot)}, indent=2))
-        return
-    m = result.metrics
-    state = "quit" if m["interrupted"] else ("arrived" if m["completed"] else "not arrived")
-    print(f"{args.town} route {args.route}: {state} after {m.get('time', 0):.0f} s, tracking cost "
-          f"{m.get('tracking_cost', 0):.0f}, collisions {m.get('vehicle_collisions', 0)}, kerb strikes "
-          f"{m.get('edge_strikes', 0)}, missed turns {m.get('missed_turns', 0)}, re-routes {m.get('reroutes', 0)}")
-    if saved is not None:
-        print(f"recorded: {saved}")
-    if session.shot is not None:
-        print(f"screenshot: {session.shot}")
+    else:
+        m = result.metrics
+        state = "stopped" if m["interrupted"] else ("arrived" if m["completed"] else "not arrived")
+        print(f"{args.town} route {args.route}: {state} after {m.get('time', 0):.0f} s, tracking cost "
+              f"{m.get('tracking_cost', 0):.0f}, vehicle collisions {m.get('vehicle_collisions', 0)}, kerb strikes "
+              f"{m.get('edge_strikes', 0)}, missed turns {m.get('missed_turns', 0)}, re-routes {m.get('reroutes', 0)}")
+        if saved is not None:
+            print(f"recorded: {saved}")
+        if session.shot is not None:
+            print(f"screenshot: {session.shot}")
+    if result.ctrl_c:
+        print("interrupted (Ctrl-C): the drive so far is kept" if saved is not None else "interrupted (Ctrl-C)",
+              file=sys.stderr)
+        return INTERRUPTED
+    return 0
 
 
-def _personalize(args: argparse.Namespace) -> None:
+def _personalize(args: argparse.Namespace) -> int:
     """Algorithm 1 with the person at the wheel (pernav.play.personal.PersonalSession); checks before any drive."""
     context = _check_drive_args(args)
     if args.updates is not None and args.updates < 0:
         raise UsageError(f"--updates must be >= 0, got {args.updates}")
     _check_learner(args.learner)
+    if args.resume and args.record is None:
+        raise UsageError("--resume needs --record DIR: the interrupted session's folder")
     import time
 
-    from pernav.play.controls import JoystickControls, KeyboardControls
-    from pernav.play.loop import make_speaker
     from pernav.play.personal import PersonalSession, summary_markdown
 
     record = args.record or str(Path("drives") / f"personal-{args.town}-{time.strftime('%Y%m%d-%H%M%S')}")
-
-    def ready() -> None:  # a person starts each drive when ready (the bot at once)
-        try:
-            input("Press Enter to drive (Esc or Q in the window stops the session) ")
-        except EOFError:
-            pass
-
     session = PersonalSession(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
                               record_dir=record, n_traffic=args.traffic, updates=args.updates,
-                              learner=args.learner, window=not args.headless, announce=print,
-                              ready=None if args.headless else ready)
+                              learner=args.learner, window=not args.headless, announce=print, resume=args.resume,
+                              countdown=args.countdown, hide_cost=args.hide_cost,
+                              calibrate=args.input == "joystick" and not args.no_calibration)
+    _check_writable("--record", record)
+    session.speaker, session.notice = _open_speaker(args)
     if not args.headless:
-        session.controls = JoystickControls() if args.input == "joystick" else KeyboardControls  # made per window
-    session.speaker = make_speaker(args.audio)
+        session.controls = _controls(args)  # keyboard controls: made per drive, once its window is open
+    if args.resume:
+        kept = sum(not d["interrupted"] for d in session.drives)
+        print(f"resuming {record}: {kept} drive(s) kept, the model after {len(session.learned)} round(s)")
     result = session.run()
     print(summary_markdown(result.summary))
     if result.interrupted:
-        print("the session was stopped early; what was driven is kept")
+        print(f"the session was stopped early; what was driven is kept (continue it: pernav personalize ... --record "
+              f"{record} --resume)")
     if any(d["file"] for d in result.drives):
         print(f"recorded: {result.folder}")
+    if result.ctrl_c:
+        print("interrupted (Ctrl-C)", file=sys.stderr)
+        return INTERRUPTED
+    return 0
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -251,6 +349,14 @@ def _drive_options(p: argparse.ArgumentParser, record_help: str) -> None:
     p.add_argument("--audio", dest="audio", action="store_true", default=None,
                    help="require sound (an error without an audio device; default: sound if there is a device)")
     p.add_argument("--no-audio", dest="audio", action="store_false", help="prompts as text only")
+    p.add_argument("--hide-cost", action="store_true", help="keep the tracking cost off the participant's screen")
+    p.add_argument("--countdown", type=float, default=3.0, metavar="SECONDS",
+                   help="countdown in the window after the person is ready (default 3)")
+    p.add_argument("--joystick-axes", metavar="STEER,THROTTLE,BRAKE",
+                   help="with --input joystick: axis indices of the wheel and pedals, ~ inverts one (e.g. 0,~2,~3); "
+                        "STEER,PEDAL for one axis for both pedals (default 0,1)")
+    p.add_argument("--no-calibration", action="store_true",
+                   help="with --input joystick: skip the screen showing each axis moving before the first drive")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -280,15 +386,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--route", type=int, default=0, help="route index 0-9 (default 0)")
     p.add_argument("--policy", default="explore",
                    help="explore (default), oracle, or study (a finished study's model, adapted on --tau)")
-    p.add_argument("--study", metavar="DIR", help="with --policy study: the finished study (pernav study --out DIR)")
+    p.add_argument("--study", metavar="DIR", help="the finished study the drive is for (pernav study --out DIR): its "
+                   "history window is recorded; with --policy study its model plans the prompts")
     p.add_argument("--tau", metavar="FILE", help="with --policy study: a recorded explore drive (.pt) of the person "
                    "to adapt the model on (default: unadapted)")
     p.add_argument("--learner", help="with --policy study: the study's learner whose model plans: adapt (default), "
                    "adapt_speed (chooses the playback speed too) or sysid")
     p.add_argument("--playback", default="normal", help="speed of the spoken prompts: slower, normal, faster")
-    p.add_argument("--history", type=int, metavar="K", help="steps of the recorded history window (default 5; the "
-                   "K of the study that will learn from the drive: the default preset's is 10; with --policy study: "
-                   "the study's)")
+    p.add_argument("--history", type=int, metavar="K", help="steps of the recorded history window (default: what "
+                   "the study that will learn from the drive reads: --study's, else the default preset's, 10)")
     _drive_options(p, "save the drive (study format) and its metrics in this folder")
     p.add_argument("--screenshot", metavar="PNG", help="save a picture of the window (one second after the first "
                    "prompt, or at --screenshot-at)")
@@ -309,6 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "adapt_speed (chooses the playback speed too) or sysid (not adapted to you: a control)")
     _drive_options(p, "the session's folder: every drive, summary.json/.md and the personalized model "
                    "(default drives/personal-TOWN-TIME)")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted session in --record (same "
+                   "settings): its drives and model are kept, the first drive not yet whole comes next")
     p.set_defaults(func=_personalize)
 
     p = sub.add_parser("bench", help="benchmarks, as ratios measured in one run")
@@ -458,16 +566,16 @@ def _judge(args: argparse.Namespace) -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        args.func(args)
+        code = args.func(args)
     except (UsageError, TownError, ProfileError, RouteError, ValueError, OSError, CheckpointError) as exc:
         # OSError: an output path that cannot be written (a file in the way, no permission, name too long)
         message = " ".join(str(exc).split()) or type(exc).__name__  # always one line
         print(f"pernav {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
-    return 0
+        print("interrupted (Ctrl-C)", file=sys.stderr)
+        return INTERRUPTED
+    return int(code or 0)
 
 
 if __name__ == "__main__":

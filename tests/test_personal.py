@@ -82,7 +82,8 @@ def test_summary_table_has_both_policies_in_range(session):
     assert set(summary["policies"]) == set(POLICY_NAMES)
     for row in summary["policies"].values():
         assert row["drives"] == 1 and 0 <= row["completion"] <= 1 and row["tracking_cost_mean"] >= 0
-        assert row["collisions"] >= 0 and row["missed_turns"] >= 0 and 0 <= row["completed"] <= row["drives"]
+        assert row["vehicle_collisions"] >= 0 and row["kerb_strikes"] >= 0 and row["missed_turns"] >= 0
+        assert 0 <= row["completed"] <= row["drives"]
     assert summary["paired_routes"] == 1
     costs = {d["policy"]: d["tracking_cost"] for d in result.drives[1:]}
     assert summary["paired_cost_difference_mean"] == pytest.approx(costs["adapted"] - costs["explore"], abs=0.01)
@@ -195,7 +196,8 @@ def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, t
 
 
 @pytest.mark.parametrize("args", [
-    ["--policy", "study"], ["--policy", "study", "--study", "{missing}"], ["--study", "{study}"],
+    ["--policy", "study"], ["--policy", "study", "--study", "{missing}"],
+    ["--study", "{study}", "--tau", "{missing}"],  # --tau goes with --policy study
     ["--policy", "study", "--study", "{study}", "--town", "Town2"],
     ["--policy", "study", "--study", "{study}", "--tau", "{missing}"],
     ["--policy", "study", "--study", "{study}", "--tau", "{study}/study.json"],
@@ -274,3 +276,117 @@ def test_docstring_examples():
     import pernav.play.personal
 
     assert doctest.testmod(pernav.play.personal).failed == 0
+
+
+# ----- issue 41: resume, Ctrl-C, checks before anyone drives --------------------------------------------------------
+class Killed(BaseException):
+    """The process killed (nothing after it runs: no summary, no clean-up)."""
+
+
+def test_a_session_killed_after_drive_2_resumes_with_its_tau_and_drives(session, study_dir, tmp_path):
+    full, full_result, _ = session  # the same session driven without a break
+    record = tmp_path / "me"
+    made = []
+
+    def controls():
+        made.append(ScriptedControls())
+        if len(made) == 3:
+            def killed() -> None:
+                raise Killed
+            made[-1].poll = killed
+        return made[-1]
+
+    first = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
+                            controls=controls, progress=False)
+    with pytest.raises(Killed):
+        first.run()
+    assert not (record / "summary.json").exists()  # killed: no summary
+    tau_file = record / "round00-route0-tau.pt"
+    tau_bytes, second_bytes = tau_file.read_bytes(), (record / "round01-route1-drive1.pt").read_bytes()
+    with pytest.raises(PlayError, match="already holds a personalization session.*--resume"):
+        PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2)
+    with pytest.raises(PlayError, match="was run with seed 0, not 1"):
+        PersonalSession(study_dir, "Town1", [0, 1], seed=1, record_dir=record, n_traffic=1, updates=2, resume=True)
+    lines: list[str] = []
+    resumed = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
+                              resume=True, announce=lines.append, progress=False)
+    assert [d["label"] for d in resumed.drives] == ["tau", "drive1"] and resumed.learned == [0]
+    result = resumed.run()
+    assert not result.interrupted and [line for line in lines if line.startswith("Drive")] == [
+        "Drive 3 of 3: Town1 route 1"]  # only the drive not yet driven
+    assert tau_file.read_bytes() == tau_bytes and (record / "round01-route1-drive1.pt").read_bytes() == second_bytes
+    assert [(d["round"], d["label"]) for d in result.drives] == [(0, "tau"), (1, "drive1"), (1, "drive2")]
+    # the same tau, drives and model as the session driven without a break
+    for mine, theirs in zip(result.drives, full_result.drives, strict=True):
+        assert mine["tracking_cost"] == theirs["tracking_cost"] and mine["policy"] == theirs["policy"]
+    for a, b in zip(resumed.trainer.members, full.trainer.members, strict=True):
+        for key, value in a.model.state_dict().items():
+            torch.testing.assert_close(value, b.model.state_dict()[key])
+    assert result.summary["resumed"] and json.loads((record / "summary.json").read_text())["paired_routes"] == 1
+    with pytest.raises(PlayError, match="is complete; nothing to resume"):
+        PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2, resume=True)
+
+
+def test_cli_personalize_ctrl_c_keeps_the_drive_in_progress_and_exits_130(study_dir, tmp_path, capsys, monkeypatch):
+    def poll(self) -> None:  # Ctrl-C two seconds into the first drive
+        if self.frames >= 25:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(ScriptedControls, "poll", poll)
+    rec = tmp_path / "me"
+    base = ["personalize", "--study", str(study_dir), "--town", "Town1", "--routes", "0", "1", "--headless",
+            "--no-audio", "--traffic", "0", "--updates", "1", "--record", str(rec)]
+    assert main(base) == 130
+    captured = capsys.readouterr()
+    assert "interrupted (Ctrl-C)" in captured.err and "--resume" in captured.out
+    stopped = rec / "round00-route0-tau-stopped.pt"
+    assert read_metrics(stopped)["interrupted"] and read_metrics(stopped)["stopped_by"] == "ctrl-c"
+    assert load_drive(stopped).shape[0] == 2
+    monkeypatch.undo()
+    assert main([*base, "--resume"]) == 0  # the stopped tau is driven again, whole
+    assert "resuming" in capsys.readouterr().out
+    assert read_metrics(rec / "round00-route0-tau.pt")["completed"] and stopped.is_file()
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--resume"], "--resume needs --record"),
+    (["--record", "{tmp}/empty", "--resume"], "holds no personalization session"),
+    (["--record", "{tmp}/file/me"], "cannot be written"),
+    (["--countdown", "-1", "--record", "{tmp}/me"], "--countdown"),
+])
+def test_cli_personalize_refusals_before_anyone_drives(args, words, study_dir, tmp_path, capsys):
+    (tmp_path / "file").write_text("x")
+    (tmp_path / "empty").mkdir()
+    args = [a.format(tmp=tmp_path) for a in args]
+    assert main(["personalize", "--study", str(study_dir), "--town", "Town1", "--routes", "0", "1", "--headless",
+                 "--no-audio", *args]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("pernav personalize: error:") and words in err and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "file"] and not any((tmp_path / "empty").iterdir())
+
+
+def test_cli_play_refuses_a_tau_of_another_town_or_history(study_dir, tmp_path, capsys):
+    from pernav.trainer.drives import save_drive
+
+    other = PlaySession("Town2", 0, n_traffic=0, K=K).run(max_steps=3)
+    town2 = save_drive(other.trajectory, other.metrics, tmp_path, "town2")
+    five = PlaySession("Town1", 0, n_traffic=0, K=5).run(max_steps=3)
+    k5 = save_drive(five.trajectory, five.metrics, tmp_path, "k5")
+    base = ["play", "--policy", "study", "--study", str(study_dir), "--headless", "--no-audio",
+            "--record", str(tmp_path / "rec")]
+    for tau, words in ((town2, "was recorded in Town2; this drive is in Town1"),
+                       (k5, f"history of 5 steps: the study's model reads {K}")):
+        assert main([*base, "--tau", str(tau)]) == 2
+        err = capsys.readouterr().err
+        assert words in err and err.count("\n") == 1 and "Traceback" not in err
+    assert main(["play", "--study", str(study_dir), "--history", "5", "--headless", "--no-audio"]) == 2
+    err = capsys.readouterr().err
+    assert f"reads a history of {K} steps" in err and "--history 5" in err
+    assert not (tmp_path / "rec").exists()
+
+
+def test_cli_play_for_a_study_records_its_history(study_dir, tmp_path, capsys):
+    assert main(["play", "--study", str(study_dir), "--headless", "--no-audio", "--traffic", "0", "--record",
+                 str(tmp_path / "rec"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert load_drive(out["record"])["history"].shape[-2] == K and out["policy"] == "explore"

@@ -12,6 +12,14 @@ than the window's ``fps`` each frame is drawn ``ceil(fps / frequency)`` times, t
 their last frame to this one (the picture lags the world by one frame, 0.1 s); a picture already late is skipped,
 and a loop that falls far behind (a stall) restarts its clock rather than rushing to catch up.
 
+A person's drive (a window in real time, or ``ready=True``): a calibration screen for a wheel (``calibrate``), a
+ready screen (the drive's ``title``, a ``notice`` such as "no sound") until the person presses Enter, a countdown,
+and at the end the result until Enter again; the world's clock runs only between the countdown and the end. The
+world stands still while the person pauses (P) or is asked whether to quit (Esc; Y quits, any other key drives
+on; Esc held a second quits): the wall-clock time of a pause counts neither in the drive's time nor against the
+pacing, and a countdown follows a pause. Ctrl-C stops the drive like a quit and keeps what was driven
+(``PlayResult.ctrl_c`` says so: the command line records it, then exits 130).
+
 Policies: ``"explore"``, ``"oracle"`` (the rule timed for the chosen user's profile) or any callable that takes the
 step's TensorDict (observation, history, route_ahead, action_mask, explore_future, ...) and returns it with an
 ``"action"`` (e.g. a study's MPC policy module; in the env's action space: 7 instructions, or 21 with playback).
@@ -42,10 +50,11 @@ from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.layout import ACTION_NAMES, PLAYBACK, audio_duration
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
 
-__all__ = ["POLICIES", "PlayError", "PlayQuit", "PlayResult", "PlaySession", "make_speaker"]
+__all__ = ["POLICIES", "PlayError", "PlayQuit", "PlayResult", "PlaySession", "make_speaker", "open_speaker"]
 
 POLICIES = ("explore", "oracle")
 MAX_STEPS = 2000  # the env's time limit ends a drive far earlier; this only bounds a runaway loop
+SCREEN_HZ = 30  # pictures per second of the screens around a drive (ready, pause, countdown)
 
 
 class PlayError(ValueError):
@@ -53,17 +62,19 @@ class PlayError(ValueError):
 
 
 class PlayQuit(Exception):
-    """The person quit (Esc, Q, closing the window)."""
+    """The person quit (Esc then Y, Esc held, or the window's close button then Y)."""
 
 
 @dataclass
 class PlayResult:
     """A finished (or quit) drive: its ``[T]`` trajectory (``None`` if quit before the first step), its metrics and
-    the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing)."""
+    the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing);
+    ``ctrl_c``: Ctrl-C was pressed (the drive is kept, marked interrupted if it was cut short; the caller stops)."""
 
     trajectory: TensorDictBase | None
     metrics: dict[str, Any]
     frame_ms: list[float] = field(default_factory=list)
+    ctrl_c: bool = False
 
     def frame_stats(self) -> dict[str, float]:
         """Median and 95th percentile of the frame times (ms)."""
@@ -74,25 +85,38 @@ class PlayResult:
                 "p95_ms": round(ordered[min(int(0.95 * len(ordered)), len(ordered) - 1)], 3), "frames": len(ordered)}
 
 
-def make_speaker(audio: bool | None) -> Any:
-    """The speaker of the prompts: ``None`` (text only) when ``audio`` is False, or when it is None (the default:
-    sound if possible) and no speaker or device is there; with ``audio=True`` a missing one is a :class:`PlayError`.
-    ``pernav.play.audio`` is loaded here, so play works (text only) without it."""
+def open_speaker(audio: bool | None) -> tuple[Any, str | None]:
+    """The speaker of the prompts and, when there is no sound although none was refused, why (to tell the person):
+    ``(None, None)`` when ``audio`` is False; ``(None, reason)`` when it is None (the default: sound if possible) and
+    no speaker or device is there; with ``audio=True`` a missing one is a :class:`PlayError`. ``pernav.play.audio``
+    is loaded here, so play works (text only) without it."""
     if audio is False:
-        return None
+        return None, None
     try:
         from pernav.play.audio import Speaker
     except ImportError as exc:
         if audio:
             raise PlayError(f"no audio: the speaker is not available ({exc})") from None
-        return None
+        return None, f"the speaker is not available ({exc})"
     if audio:
         try:
-            return Speaker(enabled=True, require=True)
+            return Speaker(enabled=True, require=True), None
         except RuntimeError as exc:
             raise PlayError(str(exc)) from None
     speaker = Speaker(enabled=True)
-    return speaker if getattr(speaker, "available", False) else None
+    if getattr(speaker, "available", False):
+        return speaker, None
+    return None, f"no audio device ({speaker.reason})"
+
+
+def make_speaker(audio: bool | None) -> Any:
+    """The speaker alone of :func:`open_speaker` (``None``: text only)."""
+    return open_speaker(audio)[0]
+
+
+def _flag(controls: Any, name: str) -> bool:
+    """A session key's state on any controls (a test's or a bot's may have none of them)."""
+    return bool(getattr(controls, name, False))
 
 
 def _with_playback(module: Callable[[TensorDictBase], TensorDictBase], playback: str) -> Callable:
@@ -114,7 +138,10 @@ class PlaySession:
     car's vehicle; ``controls`` default to :class:`~pernav.play.controls.ScriptedControls`. ``window``: a pygame
     window (paced to real time); ``draw``: draw off screen too (a screenshot, a timing); ``realtime`` defaults to
     ``window``. ``screenshot``: a PNG of the window saved at ``screenshot_at`` seconds of the drive (default: one
-    second after the first prompt is played, or at the end). ``K`` (history window, default 5) and ``env_config``
+    second after the first prompt is played, or at the end). ``ready`` (default: a window in real time, a person):
+    the screens around the drive (``calibrate``: a wheel's axes first; a ready screen showing ``title`` and
+    ``notice``; a ``countdown`` of seconds; the result at the end); ``hide_cost`` keeps the tracking cost off the
+    screen. ``K`` (history window, default 5) and ``env_config``
     (entries of the navigation env's config, e.g. a study's planning context lengths) default to the policy's
     ``K`` and ``env_config`` attributes where it has them (a study's policy: :func:`pernav.play.personal.study_policy`).
 
@@ -129,7 +156,9 @@ class PlaySession:
                  seed: int = 0, n_traffic: int = 8, playback: str = "normal", window: bool = False, draw: bool = False,
                  speaker: Any = None, realtime: bool | None = None, fps: int = 30, K: int | None = None,
                  size: tuple[int, int] = (960, 720), screenshot: str | Path | None = None,
-                 screenshot_at: float | None = None, env_config: Mapping[str, Any] | None = None) -> None:
+                 screenshot_at: float | None = None, env_config: Mapping[str, Any] | None = None,
+                 ready: bool | None = None, countdown: float = 3.0, title: str | None = None,
+                 notice: str | None = None, hide_cost: bool = False, calibrate: bool = False) -> None:
         from pernav.env.torchrl_env import explore_module, oracle_module
         from pernav.trainer.collect import history_env
 
@@ -146,6 +175,8 @@ class PlaySession:
             raise PlayError(f"seed must be >= 0, got {seed}")
         if fps < 1:
             raise PlayError(f"fps must be >= 1, got {fps}")
+        if countdown < 0:
+            raise PlayError(f"countdown must be >= 0 seconds, got {countdown}")
         profile, ctx = load_user(user)
         ctx_dict = {**(ctx.to_dict() if ctx else {}), **(context or {})}
         unknown = sorted(set(ctx_dict) - set(CONTEXT_CHOICES))
@@ -170,6 +201,12 @@ class PlaySession:
         self.controls = controls if controls is not None else ScriptedControls()
         self.speaker = speaker
         self.realtime = window if realtime is None else bool(realtime)
+        self.ready = (window and self.realtime) if ready is None else bool(ready)
+        self.countdown, self.title, self.notice = float(countdown), title, notice
+        self.hide_cost, self.calibrate = bool(hide_cost), bool(calibrate)
+        self.pauses, self.paused_s = 0, 0.0  # pauses taken, and their wall-clock seconds (the world stood still)
+        self.screen: str | None = None  # the screen shown now: calibrate, ready, countdown, pause, confirm, result
+        self.calibration: dict[str, bool] | None = None  # per control, whether the calibration saw it move
         self.screenshot_path = None if screenshot is None else Path(screenshot)
         self.screenshot_at = screenshot_at
         self.view = None
@@ -256,8 +293,10 @@ class PlaySession:
             self._sleep_until(self.t0 + self.frames * self.dt)
         self.frame_ms.append(1000.0 * (compute + drawing))
         self.controls.poll()
-        if self.controls.quit_requested:
+        if _flag(self.controls, "quit_requested"):
             raise PlayQuit
+        if _flag(self.controls, "holding"):
+            self._hold()
         self._snapshot()
         now = time.perf_counter()
         if self.realtime and now > self.t0 + self.frames * self.dt + 0.25:  # a stall: go on from here
@@ -296,13 +335,18 @@ class PlaySession:
         nav.on_prompt, nav.on_frame = self._on_prompt, self._on_frame
         self._snapshot()
         self._update_distance()
-        self.t0 = self._t_out = time.perf_counter()
         if self.view is not None:
             self.view.draw(self, 1.0)
             self.view.present()
         steps: list[TensorDictBase] = []
-        interrupted = False
+        interrupted = ctrl_c = False
         try:
+            if self.ready:  # the clock starts after the person's go and the countdown
+                if self.calibrate and hasattr(self.controls, "axes_now"):
+                    self._calibrate()
+                self._wait_ready()
+                self._count_down()
+            self.t0 = self._t_out = time.perf_counter()
             with torch.no_grad():
                 for _ in range(max_steps):
                     td.update(self.policy(td))
@@ -314,8 +358,11 @@ class PlaySession:
                     td = nxt
         except PlayQuit:
             interrupted = True
+        except KeyboardInterrupt:  # Ctrl-C: kept as a quit drive; the caller stops after recording it
+            interrupted = ctrl_c = True
         finally:
             nav.on_prompt = nav.on_frame = None
+            self.screen = None
         if self.view is not None and self.screenshot_path is not None and self.shot is None:
             self.shot = self.screenshot(self.screenshot_path)  # the drive ended before the moment asked for
         trajectory = torch.stack(steps).contiguous() if steps else None
@@ -328,8 +375,121 @@ class PlaySession:
             metrics.update(completed=False, steps=0)
         metrics.update(interrupted=interrupted, town=self.town, route=self.route, user=self.user,
                        policy=self.policy_name, seed=self.seed, playback=self.playback,
-                       controls=type(self.controls).__name__, frequency=int(nav.config["frequency"]))
-        return PlayResult(trajectory, metrics, list(self.frame_ms))
+                       controls=type(self.controls).__name__, frequency=int(nav.config["frequency"]),
+                       pauses=self.pauses, paused_s=round(self.paused_s, 2), stopped_by=(
+                           "ctrl-c" if ctrl_c else "person" if interrupted else None))
+        if self.ready and not interrupted:
+            try:
+                self._show_result(metrics)
+            except KeyboardInterrupt:  # the drive is whole; the caller stops after recording it
+                ctrl_c = True
+        return PlayResult(trajectory, metrics, list(self.frame_ms), ctrl_c)
+
+    # ----- the screens around a drive ----------------------------------------------------------------
+    def _screen_tick(self) -> None:
+        """One picture's wait of a screen, then the person's keys (a quit confirmed raises :class:`PlayQuit`)."""
+        if self.realtime:
+            time.sleep(1.0 / SCREEN_HZ)
+        self.controls.poll()
+        if _flag(self.controls, "quit_requested"):
+            raise PlayQuit
+
+    def _panel(self, lines: list[str], big: str | None = None) -> None:
+        if self.view is None:
+            return
+        from pernav.play.screens import show_panel
+
+        self.view.draw(self, 1.0)
+        if _flag(self.controls, "confirming"):
+            big, lines = "Quit?", ["Y: stop this drive (what was driven is kept)", "any other key: go on driving",
+                                   "(or hold Esc for a second)"]
+        show_panel(self.view, lines, big=big, title=self.title)
+
+    def _set_caption(self) -> None:
+        if self.view is not None and getattr(self.view, "window", False):
+            self.view.pygame.display.set_caption(f"pernav play - {self.title}" if self.title else "pernav play")
+
+    def _wait_ready(self) -> None:
+        """The ready screen until the person's go (Enter, space or a button); Esc asks whether to quit."""
+        self.screen = "ready"
+        self._set_caption()
+        getattr(self.controls, "take_go", lambda: False)()  # a go pressed before the screen does not count
+        lines = [f"{self.town}, route {self.route}", "Press Enter (or a wheel button) when you are ready",
+                 "P: pause   Esc: stop (asks first)"]
+        if self.notice:
+            lines.append(self.notice)
+        while True:
+            self._panel(lines, big="Ready?")
+            self._screen_tick()
+            if getattr(self.controls, "take_go", lambda: True)() and not _flag(self.controls, "holding"):
+                break
+
+    def _count_down(self) -> None:
+        """The countdown, the world still (seconds shown 3, 2, 1)."""
+        self.screen = "countdown"
+        end = time.perf_counter() + self.countdown
+        while (left := end - time.perf_counter()) > 0:
+            self._panel(["Get ready"], big=str(math.ceil(left)))
+            self._screen_tick()
+            if not self.realtime:
+                time.sleep(min(left, 1.0 / SCREEN_HZ))  # a screen tick did not wait: the countdown still takes its time
+        self.screen = None
+
+    def _hold(self) -> None:
+        """The world stands still while the person pauses or is asked whether to quit; a countdown follows a pause.
+        The wall clock of the drive goes on from here (a pause counts neither in its time nor in the pacing)."""
+        start = time.perf_counter()
+        paused = False
+        while _flag(self.controls, "holding"):
+            if _flag(self.controls, "paused") and not paused:
+                paused, self.pauses = True, self.pauses + 1
+            self.screen = "confirm" if _flag(self.controls, "confirming") else "pause"
+            self._panel(["P or Enter: drive on", "Esc: stop (asks first)"], big="Paused")
+            self._screen_tick()
+        if paused and self.countdown > 0:
+            self._count_down()
+        self.screen = None
+        held = time.perf_counter() - start
+        if paused:
+            self.paused_s += held
+        self.t0 += held
+
+    def _calibrate(self) -> None:
+        """A wheel's axes, live, until the person's go (skip it at once with Enter)."""
+        from pernav.play.controls import AxisCheck
+        from pernav.play.screens import show_axes
+
+        self.screen = "calibrate"
+        self._set_caption()
+        check = AxisCheck()
+        getattr(self.controls, "take_go", lambda: False)()
+        while True:
+            values = self.controls.axes_now()
+            check.update(values)
+            self.calibration = check.moved()
+            if self.view is not None:
+                show_axes(self.view, values, self.calibration, title=self.title)
+            self._screen_tick()
+            if self.controls.take_go() and not _flag(self.controls, "holding"):
+                break
+
+    def _show_result(self, metrics: Mapping[str, Any]) -> None:
+        """The drive's result until the person's go."""
+        from pernav.play.screens import result_lines
+
+        self.screen = "result"
+        getattr(self.controls, "take_go", lambda: False)()
+        lines = [*result_lines(metrics, self.hide_cost), "Press Enter to continue"]
+        try:
+            while True:
+                self._panel(lines)
+                self._screen_tick()
+                if getattr(self.controls, "take_go", lambda: True)() and not _flag(self.controls, "holding"):
+                    break
+        except PlayQuit:  # quitting at the end screen leaves it: the drive is over anyway
+            pass
+        finally:
+            self.screen = None
 
     def close(self) -> None:
         """Close the window and the speaker."""

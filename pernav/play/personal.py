@@ -17,8 +17,12 @@ far, then re-adaptation on the latest tau. The MPC drive of round ``t`` plans wi
 ``t - 1``'s tau, so both drives of a round face the same policies whatever their order (the paper adapts on the
 round's own tau, driven first; here that would tell the person which drive comes next).
 
-Every drive is recorded at once (:func:`~pernav.trainer.drives.save_drive`); quitting (Esc/Q, or Ctrl+C) ends the
-session with what was driven, and ``summary.json``/``summary.md`` compare the two policies on the paired routes.
+Every drive is recorded at once (:func:`~pernav.trainer.drives.save_drive`), with the session's progress
+(``session.json``) after each drive and the personalized model (``model.pt``) after each round's learning; quitting
+(Esc then Y, or Ctrl+C) ends the session with what was driven (a drive cut short is kept as ``...-stopped``), and
+``summary.json``/``summary.md`` compare the two policies on the paired routes. ``resume=True`` continues an
+interrupted session in its folder: the drives already whole are kept (tau among them), the model is the one saved
+after the last round learned, and the session goes on with the first drive not yet whole.
 
 Example (the scripted bot drives; a finished study in ``runs/smoke``):
     >>> policy, info = study_policy("runs/smoke", "Town1")                             # doctest: +SKIP
@@ -53,7 +57,7 @@ from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, to_speed_actions
-from pernav.trainer.drives import atomic_write, save_drive
+from pernav.trainer.drives import atomic_write, load_drive, save_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES, get_town
@@ -62,7 +66,9 @@ __all__ = ["PersonalResult", "PersonalSession", "StudyModel", "StudyPolicy", "ad
            "study_policy", "summary_markdown"]
 
 POLICY_NAMES = ("adapted", "explore")  # the two policies a personalization session compares
-SESSION_FILES = ("summary.json", "summary.md", "model.pt")  # what a session writes beside its drives
+SESSION_FILES = ("session.json", "summary.json", "summary.md", "model.pt")  # what a session writes beside its drives
+# the settings a resumed session must share with the interrupted one
+RESUME_KEYS = ("study", "town", "routes", "seed", "learner", "user", "context", "n_traffic", "updates")
 # meta updates after a round by default (fewer if the study took fewer): a few, as the person waits for the next
 # drive; the study's own (50 in the default preset) take minutes on a laptop with second-order updates
 UPDATES = 10
@@ -108,17 +114,9 @@ class StudyModel:
         return EnsembleTrainer.from_states(self.model_config, self.members, self.train, buffers, seed)
 
 
-def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> StudyModel:
-    """Read a finished study's settings and final ensemble of ``learner`` in ``town``; :class:`PlayError` (one line)
-    for a missing or unfinished study folder, a town it did not run, a learner it did not train.
-
-    >>> load_study("/nonexistent", "Town1")
-    Traceback (most recent call last):
-    ...
-    pernav.play.loop.PlayError: no study folder '/nonexistent'
-    """
-    from pernav.study.runner import final_models
-
+def study_settings(study_dir: str | Path, town: str) -> dict[str, Any]:
+    """A finished study's ``study.json`` (its settings), checked: a folder holding a finished study that ran ``town``;
+    :class:`PlayError` (one line) otherwise. Reads no checkpoint (fast: the checks before a window opens)."""
     folder = Path(study_dir)
     if not folder.is_dir():
         raise PlayError(f"no study folder {str(folder)!r}")
@@ -137,6 +135,28 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
     towns = list(config.get("towns") or [])
     if town not in towns:
         raise PlayError(f"the study in {str(folder)!r} did not run {town}; it ran {', '.join(towns) or 'no town'}")
+    return config
+
+
+def study_history(study_dir: str | Path, town: str) -> int:
+    """The history window (steps) a finished study's model reads: what a drive recorded for it must have."""
+    train = study_settings(study_dir, town).get("train") or {}
+    return int(train.get("K", TrainConfig().K))
+
+
+def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> StudyModel:
+    """Read a finished study's settings and final ensemble of ``learner`` in ``town``; :class:`PlayError` (one line)
+    for a missing or unfinished study folder, a town it did not run, a learner it did not train.
+
+    >>> load_study("/nonexistent", "Town1")
+    Traceback (most recent call last):
+    ...
+    pernav.play.loop.PlayError: no study folder '/nonexistent'
+    """
+    from pernav.study.runner import final_models
+
+    folder = Path(study_dir)
+    config = study_settings(folder, town)
     methods = list(config.get("methods") or [])
     if learner not in LEARNERS or not (learner in methods or (learner == "adapt" and "hindsight" in methods)):
         trained = [m for m in LEARNERS if m in methods or (m == "adapt" and "hindsight" in methods)]
@@ -182,7 +202,8 @@ def adapted_parameters(study: StudyModel, trainer: EnsembleTrainer, drives: Sequ
     for d in drives:
         if d["history"].shape[-2] != study.K:
             raise PlayError(f"a drive with a history of {d['history'].shape[-2]} steps: the study's model reads "
-                            f"{study.K} (record it with this study's policy or session)")
+                            f"{study.K} (record it with this study's policy or session, or pernav play --history "
+                            f"{study.K})")
     drives = [_in_model_space(d, study.n_actions) for d in drives]
     if study.train.personal_updates:
         return trainer.fine_tuned(list(drives), study.train.personal_updates, seed, replay=study.train.personal_replay)
@@ -258,13 +279,15 @@ class PersonalResult:
     summary: dict[str, Any]
     folder: Path | None
     interrupted: bool
+    ctrl_c: bool = False  # the session was stopped by Ctrl-C (the command line exits 130)
 
 
 def _policy_row(drives: list[dict[str, Any]]) -> dict[str, Any]:
     n = len(drives)
     return {"drives": n,
             "tracking_cost_mean": round(sum(d["tracking_cost"] for d in drives) / n, 2) if n else None,
-            "collisions": sum(d["collisions"] for d in drives),
+            "vehicle_collisions": sum(d["vehicle_collisions"] for d in drives),
+            "kerb_strikes": sum(d["edge_strikes"] for d in drives),
             "missed_turns": sum(d["missed_turns"] for d in drives),
             "completed": sum(bool(d["completed"]) for d in drives),
             "completion": round(sum(bool(d["completed"]) for d in drives) / n, 4) if n else None}
@@ -272,8 +295,8 @@ def _policy_row(drives: list[dict[str, Any]]) -> dict[str, Any]:
 
 def summarize_drives(drives: list[dict[str, Any]]) -> dict[str, Any]:
     """Per policy over the paired rounds' whole drives (a quit drive is recorded but not counted): drives, mean
-    tracking cost, collisions, missed turns, completed; and the mean paired difference (adapted - explore) of the
-    tracking cost over the routes driven whole with both."""
+    tracking cost, vehicle collisions, kerb strikes, missed turns, completed; and the mean paired difference
+    (adapted - explore) of the tracking cost over the routes driven whole with both."""
     whole = [d for d in drives if d["round"] > 0 and not d["interrupted"]]
     policies = {name: _policy_row([d for d in whole if d["policy"] == name]) for name in POLICY_NAMES}
     by_round: dict[int, dict[str, float]] = {}
@@ -288,14 +311,14 @@ def summary_markdown(summary: dict[str, Any]) -> str:
     """The summary's table in Markdown.
 
     >>> print(summary_markdown(summarize_drives([])).splitlines()[2])
-    | adapted | 0 | - | 0 | 0 | 0/0 |
+    | adapted | 0 | - | 0 | 0 | 0 | 0/0 |
     """
-    lines = ["| policy | drives | mean tracking cost | collisions | missed turns | completed |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| policy | drives | mean tracking cost | vehicle collisions | kerb strikes | missed turns | completed |",
+             "|---|---|---|---|---|---|---|"]
     for name, row in summary["policies"].items():
         cost = "-" if row["tracking_cost_mean"] is None else f"{row['tracking_cost_mean']:.0f}"
-        lines.append(f"| {name} | {row['drives']} | {cost} | {row['collisions']} | {row['missed_turns']} | "
-                     f"{row['completed']}/{row['drives']} |")
+        lines.append(f"| {name} | {row['drives']} | {cost} | {row['vehicle_collisions']} | {row['kerb_strikes']} | "
+                     f"{row['missed_turns']} | {row['completed']}/{row['drives']} |")
     if summary.get("paired_routes"):
         lines.append("")
         lines.append(f"Paired routes: {summary['paired_routes']}; mean tracking cost difference (adapted - explore): "
@@ -312,7 +335,9 @@ class PersonalSession:
     ``updates``: meta updates after each round (default: the study's ``train.updates``, at most :data:`UPDATES`).
     ``announce`` is called with a neutral line before each drive ("Drive 2 of 5: Town1 route 3") and after it (how
     it went, not with which policy), ``ready`` after the announcement (e.g. waits for the person to press Enter);
-    ``window``, ``speaker`` as :class:`PlaySession`. ``record_dir`` must not hold another session.
+    ``window``, ``speaker``, ``countdown``, ``hide_cost`` and ``notice`` as :class:`PlaySession` (each drive's
+    window shows "Drive n of N"; ``calibrate``: a wheel's calibration screen before the first drive). ``record_dir``
+    must not hold another session, unless ``resume`` (then it must hold one, run with the same settings).
 
     >>> session = PersonalSession("runs/smoke", "Town1", [0, 3, 5], seed=1)   # doctest: +SKIP
     >>> session.order                                                          # doctest: +SKIP
@@ -323,7 +348,9 @@ class PersonalSession:
                  context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
                  n_traffic: int = 8, updates: int | None = None, learner: str = "adapt", window: bool = False,
                  speaker: Any = None, announce: Callable[[str], None] | None = None,
-                 ready: Callable[[], None] | None = None, progress: bool = True) -> None:
+                 ready: Callable[[], None] | None = None, progress: bool = True, resume: bool = False,
+                 countdown: float = 3.0, hide_cost: bool = False, notice: str | None = None,
+                 calibrate: bool = False) -> None:
         routes = list(routes)
         if town not in TOWN_NAMES:
             raise PlayError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
@@ -338,12 +365,18 @@ class PersonalSession:
         if updates is not None and updates < 0:
             raise PlayError(f"updates must be >= 0, got {updates}")
         self.record_dir = None if record_dir is None else Path(record_dir)
+        if resume and self.record_dir is None:
+            raise PlayError("resuming needs the interrupted session's record folder")
         if self.record_dir is not None:
             if self.record_dir.exists() and not self.record_dir.is_dir():
                 raise PlayError(f"record folder {str(self.record_dir)!r} exists and is not a folder")
-            if any((self.record_dir / name).exists() for name in SESSION_FILES):
+            held = any((self.record_dir / name).exists() for name in SESSION_FILES)
+            if held and not resume:
                 raise PlayError(f"record folder {str(self.record_dir)!r} already holds a personalization session; "
-                                "choose another")
+                                "choose another, or --resume to continue it")
+            if resume and not (self.record_dir / "session.json").is_file():
+                raise PlayError(f"--resume: record folder {str(self.record_dir)!r} holds no personalization session "
+                                "to resume (no session.json)")
         self.study = load_study(study_dir, town, learner)
         self.town, self.routes, self.seed = town, routes, int(seed)
         self.user, self.context, self.n_traffic = user, context, int(n_traffic)
@@ -360,6 +393,14 @@ class PersonalSession:
         self.adapted_on: int | None = None  # the round whose tau self.params are adapted on
         self.drives: list[dict[str, Any]] = []
         self.meta_losses: list[float] = []
+        self.countdown, self.hide_cost, self.notice, self.calibrate = countdown, hide_cost, notice, calibrate
+        self.learned: list[int] = []  # rounds whose drives the model has learned from
+        self.ctrl_c = False
+        self._first_drive = True  # the calibration screen comes before it
+        self._trajectories: dict[tuple[int, str], TensorDictBase] = {}  # (round, label) -> whole drive of this run
+        self.resumed = resume
+        if resume:
+            self._restore()
 
     @property
     def order(self) -> list[tuple[str, str]]:
@@ -381,14 +422,18 @@ class PersonalSession:
     def _drive(self, round_: int, route: int, policy_name: str, label: str, number: int, total: int
                ) -> PlayResult:
         """One drive, recorded at once; both drives of a round share the world's seed (same traffic, same luck)."""
-        self.announce(f"Drive {number} of {total}: {self.town} route {route}")
+        title = f"Drive {number} of {total}: {self.town} route {route}"
+        self.announce(title)
         self.ready()
         policy = self.policy if policy_name == "adapted" else "explore"
         session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
                               seed=derive_seed(self.seed, self.town, "drive", round_), n_traffic=self.n_traffic,
                               window=self.window, speaker=self.speaker, K=self.study.K,
                               # adapt_speed's drives choose the playback speed too (21 actions); explore's do not
-                              env_config=self.study.env_config(None if policy_name == "adapted" else 7))
+                              env_config=self.study.env_config(None if policy_name == "adapted" else 7),
+                              title=title, countdown=self.countdown, hide_cost=self.hide_cost, notice=self.notice,
+                              calibrate=self.calibrate and self._first_drive)
+        self._first_drive = False
         try:
             session.controls = self._controls()
             result = session.run()
@@ -400,13 +445,28 @@ class PersonalSession:
                   == "explore", "adapted_on_round": self.adapted_on if policy_name == "adapted" else None,
                   "frames": result.frame_stats(), "file": None}
         if result.trajectory is not None and self.record_dir is not None:
-            name = f"round{round_:02d}-route{route}-{label}"
-            record["file"] = str(save_drive(result.trajectory, record, self.record_dir, name))
+            record["file"] = str(save_drive(result.trajectory, record, self.record_dir, self._file_name(
+                round_, route, label, m["interrupted"])))
+        if result.trajectory is not None and not m["interrupted"]:
+            self._trajectories[round_, label] = result.trajectory
         self.drives.append(record)
+        self._save_progress()
         state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
         self.announce(f"  {state} after {m.get('time', 0):.0f} s: tracking cost {m.get('tracking_cost', 0):.0f}, "
-                      f"collisions {m.get('vehicle_collisions', 0)}, missed turns {m.get('missed_turns', 0)}")
+                      f"vehicle collisions {m.get('vehicle_collisions', 0)}, kerb strikes {m.get('edge_strikes', 0)}, "
+                      f"missed turns {m.get('missed_turns', 0)}")
         return result
+
+    def _file_name(self, round_: int, route: int, label: str, stopped: bool) -> str:
+        """A whole drive's name, or for one cut short a ``-stopped`` name not yet taken (a resumed session drives
+        that slot again under the whole name)."""
+        name = f"round{round_:02d}-route{route}-{label}"
+        if not stopped:
+            return name
+        k = 1
+        while (self.record_dir / f"{name}-stopped{'' if k == 1 else k}.pt").exists():
+            k += 1
+        return f"{name}-stopped{'' if k == 1 else k}"
 
     def _learn(self, round_: int, tau: TensorDictBase, other: TensorDictBase | None = None) -> None:
         """Add the round's drives (``tau`` as its adaptation trajectory), take the meta updates on all rounds so
@@ -426,29 +486,127 @@ class PersonalSession:
                                          derive_seed(self.seed, self.town, "personal", round_))
         self.policy.set_parameters(self.params, tau)
         self.adapted_on = round_
+        self.learned.append(round_)
+        self._save_model()
+
+    # ----- progress on disk, and resuming ------------------------------------------------------------
+    def settings(self) -> dict[str, Any]:
+        """What a resumed session must share with the interrupted one (:data:`RESUME_KEYS`)."""
+        return {"study": str(self.study.folder.resolve()), "town": self.town, "routes": self.routes, "seed": self.seed,
+                "learner": self.study.learner, "user": self.user if isinstance(self.user, str) else "custom",
+                "context": dict(self.context or {}), "n_traffic": self.n_traffic, "updates": self.updates}
+
+    def _save_progress(self) -> None:
+        """``session.json``: the settings and every drive so far (written after each drive)."""
+        if self.record_dir is None:
+            return
+        self.record_dir.mkdir(parents=True, exist_ok=True)
+        data = {**self.settings(), "K": self.study.K, "drives": self.drives, "learned": self.learned}
+        atomic_write(self.record_dir / "session.json", lambda p: p.write_text(json.dumps(data, indent=1)))
+
+    def _save_model(self) -> None:
+        """``model.pt``: the personalized ensemble after the rounds learned so far (what a resumed session starts
+        from), with the replay's sampling state."""
+        if self.record_dir is None:
+            return
+        self.record_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.record_dir / "model.pt", lambda p: torch.save(
+            {"study": str(self.study.folder), "town": self.town, "learner": self.study.learner,
+             "saved": time.strftime("%Y-%m-%d %H:%M:%S"), "trainer": self.trainer.state_dict(),
+             "learned": list(self.learned), "meta_losses": list(self.meta_losses),
+             "buffers_generator": self.buffers.generator.get_state()}, p))
+        self._save_progress()
+
+    def _restore(self) -> None:
+        """Take up an interrupted session from its folder: its drives, and the model after its last learned round
+        (its buffers rebuilt from the recorded drives of those rounds, as they were added)."""
+        folder = self.record_dir
+        try:
+            saved = json.loads((folder / "session.json").read_text())
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise PlayError(f"--resume: {str(folder / 'session.json')!r} cannot be read ({exc})") from None
+        mine = self.settings()
+        for key in RESUME_KEYS:
+            if saved.get(key) != mine[key]:
+                raise PlayError(f"--resume: the session in {str(folder)!r} was run with {key} {saved.get(key)!r}, "
+                                f"not {mine[key]!r}")
+        self.drives = list(saved.get("drives") or [])
+        learned = list(saved.get("learned") or [])
+        if learned:
+            try:
+                state = torch.load(folder / "model.pt", weights_only=False)
+                self.trainer.load_state_dict(state["trainer"])
+            except (OSError, KeyError, RuntimeError, EOFError, pickle.UnpicklingError, ValueError) as exc:
+                raise PlayError(f"--resume: the session's model {str(folder / 'model.pt')!r} cannot be read "
+                                f"({' '.join(str(exc).split())})") from None
+            learned = list(state["learned"])
+            self.meta_losses = list(state["meta_losses"])
+            for r in learned:
+                tau, other = self._whole_trajectory(r, "explore"), self._whole_trajectory(r, "adapted")
+                self.buffers.add(r, _in_model_space(tau, self.study.n_actions), tau=True)
+                if other is not None:
+                    self.buffers.add(r, _in_model_space(other, self.study.n_actions))
+            self.buffers.generator.set_state(state["buffers_generator"])
+            last = learned[-1]
+            self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],
+                                             derive_seed(self.seed, self.town, "personal", last))
+            self.policy.set_parameters(self.params, self._whole_trajectory(last, "explore"))
+            self.adapted_on = last
+        self.learned = learned
+        if len(self.learned) == len(self.routes) and all(self._whole(r, label) for r, _, _, label, _ in self._slots()):
+            raise PlayError(f"--resume: the session in {str(folder)!r} is complete; nothing to resume")
+
+    def _slots(self) -> list[tuple[int, int, str, str, int]]:
+        """Every drive of the session: (round, route, policy, label, number)."""
+        slots = [(0, self.routes[0], "explore", "tau", 1)]
+        for r, route in enumerate(self.routes[1:], start=1):
+            slots += [(r, route, name, f"drive{j + 1}", 2 * r + j) for j, name in enumerate(self.order[r - 1])]
+        return slots
+
+    def _whole(self, round_: int, label: str) -> dict[str, Any] | None:
+        """The record of the whole (not stopped) drive of a round's slot, if there is one."""
+        return next((d for d in self.drives if d["round"] == round_ and d["label"] == label
+                     and not d["interrupted"]), None)
+
+    def _whole_trajectory(self, round_: int, policy_name: str) -> TensorDictBase | None:
+        """The trajectory of a round's whole drive with a policy (``explore``: tau in round 0), from this run or its
+        file."""
+        record = next((d for d in self.drives if d["round"] == round_ and d["policy"] == policy_name
+                       and not d["interrupted"]), None)
+        if record is None:
+            return None
+        if (round_, record["label"]) in self._trajectories:
+            return self._trajectories[round_, record["label"]]
+        if not record.get("file"):
+            raise PlayError(f"--resume: the drive {record['label']} of round {round_} has no file")
+        try:
+            return load_drive(record["file"])
+        except (OSError, ValueError) as exc:
+            raise PlayError(f"--resume: {' '.join(str(exc).split())}") from None
 
     def run(self) -> PersonalResult:
-        """Drive the rounds; stops early when the person quits. Writes the summary with what was driven."""
+        """Drive the rounds (a resumed session: from its first drive not yet whole); stops early when the person
+        quits or on Ctrl-C. Writes the summary with what was driven."""
         total = 1 + 2 * (len(self.routes) - 1)
         interrupted = False
+        self._first_drive = True
         try:
-            tau = self._drive(0, self.routes[0], "explore", "tau", 1, total)
-            interrupted = bool(tau.metrics["interrupted"])
-            if not interrupted:
-                self._learn(0, tau.trajectory)
-            for r, route in enumerate(self.routes[1:], start=1):
-                if interrupted:
-                    break
-                done: dict[str, PlayResult] = {}
-                for j, name in enumerate(self.order[r - 1]):
-                    done[name] = self._drive(r, route, name, f"drive{j + 1}", 2 * r + j, total)
-                    if done[name].metrics["interrupted"]:
+            for round_ in range(len(self.routes)):
+                for r, route, name, label, number in self._slots():
+                    if r != round_ or self._whole(r, label) is not None:
+                        continue
+                    result = self._drive(r, route, name, label, number, total)
+                    self.ctrl_c = self.ctrl_c or result.ctrl_c
+                    if result.metrics["interrupted"] or result.ctrl_c:
                         interrupted = True
                         break
-                if not interrupted:  # (after the last round too: model.pt keeps what all the drives taught)
-                    self._learn(r, done["explore"].trajectory, done["adapted"].trajectory)
+                if interrupted:
+                    break
+                if round_ not in self.learned:  # (after the last round too: model.pt keeps what all drives taught)
+                    self._learn(round_, self._whole_trajectory(round_, "explore"),
+                                self._whole_trajectory(round_, "adapted"))
         except KeyboardInterrupt:
-            interrupted = True
+            interrupted = self.ctrl_c = True
         return self._finish(interrupted)
 
     def _finish(self, interrupted: bool) -> PersonalResult:
@@ -457,18 +615,17 @@ class PersonalSession:
                    "updates_per_round": self.updates, "interrupted": interrupted,
                    "order": [list(o) for o in self.order[: max((d["round"] for d in self.drives), default=0)]],
                    **summarize_drives(self.drives),
-                   "drives": [{k: d[k] for k in ("round", "route", "label", "policy", "tracking_cost", "collisions",
-                                                 "missed_turns", "completed", "interrupted", "file") if k in d}
+                   "resumed": self.resumed,
+                   "drives": [{k: d[k] for k in ("round", "route", "label", "policy", "tracking_cost",
+                                                 "vehicle_collisions", "edge_strikes", "missed_turns", "completed",
+                                                 "interrupted", "file") if k in d}
                               for d in self.drives]}
         if self.record_dir is not None and any(d["file"] for d in self.drives):
             atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
             atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
                 f"# Personalization: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
                 f"{summary_markdown(summary)}\n"))
-            atomic_write(self.record_dir / "model.pt", lambda p: torch.save(
-                {"study": str(self.study.folder), "town": self.town, "learner": self.study.learner,
-                 "saved": time.strftime("%Y-%m-%d %H:%M:%S"), "trainer": self.trainer.state_dict()}, p))
         if self.speaker is not None and hasattr(self.speaker, "close"):
             self.speaker.close()
-        return PersonalResult(list(self.drives), summary, self.record_dir, interrupted)
+        return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)
 

@@ -116,14 +116,15 @@ class PlayView:
             text = self.big.render(prompt, True, (255, 255, 255))
             out.blit(text, ((w - text.get_width()) // 2, 12))
         ev, ego = nav.world.events, nav.world.ego
-        status = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   cost {nav.tracking_cost:6.0f}   "
+        cost = "" if getattr(session, "hide_cost", False) else f"cost {nav.tracking_cost:6.0f}   "
+        status = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}"
                   f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
                   f"re-routes {nav.reroutes}")
         band = pg.Surface((w, 30), pg.SRCALPHA)
         band.fill((0, 0, 0, 150))
         out.blit(band, (0, h - 56))
         out.blit(self.font.render(status, True, (255, 255, 255)), (10, h - 52))
-        hint = "arrows/WASD: steer, throttle, brake   Esc/Q: quit"
+        hint = "arrows/WASD: steer, throttle, brake   P: pause   Esc: stop (asks first)"
         if ego.stop_ahead is not None and ego.stop_ahead < 30.0:
             hint = f"give way: stop line in {ego.stop_ahead:3.0f} m   " + hint
         out.blit(self.small.render(hint, True, (230, 230, 230)), (10, h - 22))

@@ -110,8 +110,11 @@ def _load(where: str, path: str) -> Any:
 
     try:
         return load_drive(path)
-    except Exception as exc:  # noqa: BLE001 - torch.load fails in many ways on a file that is not a drive
-        raise ScheduleError(f"{where}: field 'drives': {path!r} is not a pernav drive ({' '.join(str(exc).split())})"
+    except ValueError:  # load_drive's own one line (never torch's advice to unpickle the file unsafely)
+        raise ScheduleError(f"{where}: field 'drives': {path!r} is not a pernav drive (not written by pernav play "
+                            "--record or save_drive)") from None
+    except Exception as exc:  # noqa: BLE001 - an unreadable file (permissions, a folder)
+        raise ScheduleError(f"{where}: field 'drives': {path!r} cannot be read ({' '.join(str(exc).split())})"
                             ) from None
 
 

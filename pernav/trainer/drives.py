@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 from pathlib import Path
 from typing import Any
 
@@ -63,9 +64,13 @@ def save_drive(trajectory: TensorDictBase, metrics: dict[str, Any], folder: str 
 
 def load_drive(path: str | Path) -> TensorDictBase:
     """The ``[T]`` trajectory of a drive saved by :func:`save_drive` (ready for ``RoundBuffers.add``)."""
-    data = torch.load(Path(path), weights_only=True)
+    try:
+        data = torch.load(Path(path), weights_only=True)
+    except (RuntimeError, EOFError, pickle.UnpicklingError, ValueError, UnicodeDecodeError):
+        # any other .pt (a checkpoint, a model) or none: our own words, not torch's advice to unpickle it unsafely
+        data = None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
-        raise ValueError(f"{str(path)!r} is not a pernav drive (format {FORMAT})")
+        raise ValueError(f"{str(path)!r} is not a pernav drive (not written by pernav play --record or save_drive)")
     return TensorDict(data["trajectory"], batch_size=data["batch_size"])
 
 
