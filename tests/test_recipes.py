@@ -3,6 +3,7 @@ they claim."""
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 import json
 import subprocess
@@ -77,3 +78,12 @@ def test_pool_seeds_pairs_two_protocols_on_the_same_episodes(tmp_path):
                           "--against", str(tmp_path / "r2.json"), "--json", str(out)], capture_output=True, text=True)
     assert run.returncode == 2 and "not paired" in run.stderr and not out.exists()
 
+
+RECIPES = sorted((ROOT / "recipes").glob("*.py"))
+
+
+@pytest.mark.parametrize("path", RECIPES, ids=[p.stem for p in RECIPES])
+def test_each_recipe_says_what_it_shows_and_how_long_it_takes(path: Path) -> None:
+    doc = ast.get_docstring(ast.parse(path.read_text(encoding="utf-8"))) or ""
+    assert len(doc.splitlines()) >= 3, f"{path.name}: a module docstring of what it shows"
+    assert any(w in doc for w in (" s ", " s)", " s,", " s;", "second", "min", "hour")), f"{path.name}: how long it takes"
