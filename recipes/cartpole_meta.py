@@ -1,4 +1,7 @@
-"""The paper's Algorithm 1 on a second task: CartPole whose dynamics change every round (issue #32).
+"""The paper's Algorithm 1 on a second task: CartPole whose dynamics change every round.
+
+Shows that pernav's TorchRL parts carry a task with no navigation in it. Takes about 6 minutes with the
+defaults on a 2-core laptop CPU (``--K 2``: 8 minutes); the figures are in docs/components.md.
 
 No navigation code: the same TorchRL parts pernav's study uses, on gymnasium's CartPole-v1 with a different
 pole length, pole mass and motor per round (the motor's force 6-14 N, and in half of the tasks wired backwards:

@@ -1,5 +1,8 @@
 """Make the navigation's spoken prompts: one small WAV per instruction and playback speed.
 
+Not an example to copy: the generator of the speech files committed in ``pernav/play/speech/``; run it only to
+re-make them (a few seconds with a speech engine installed).
+
 Writes ``{instruction}_{playback}.wav`` for instructions 1-6 (0, "no instruction", is silence: no file) and
 the playback speeds of :data:`pernav.world.simulation.PLAYBACK`, as 16-bit mono PCM at 16 kHz, into the
 folder given (the package's copy is ``pernav/play/speech``, committed: the package never needs a speech

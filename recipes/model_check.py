@@ -1,5 +1,8 @@
 """Does the model know the driver's timing? Prompt-now vs prompt-3-s-later divergence, true vs predicted.
 
+A diagnostic of a finished study's models (docs/planning.md). Takes about 4 minutes per town on a 2-core laptop
+CPU (measured on a ``smoke`` study; a default study's larger ensemble may take longer).
+
 At approach states of panel drivers' explore episodes (a prompt of explore's plan is due within 1-4 steps),
 the true simulator is branched (re-seeded, 2 samples) into "explore's next prompts now" and "the same, 3 s
 later", and the car's position divergence between the two after 5 and 10 steps is measured. Each model
@@ -11,7 +14,7 @@ the true and the predicted divergence, and the mean absolute error, for:
   drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option).
   The step is the study's own test-time ``U`` (its ``alpha``, ``L``, gradient clip and backtracking, from its
   study.json; a model with a context adapts only it); ``--adapt-step fixed``: the study's ``alpha`` as a fixed step,
-  without clip or backtracking (for the default's alpha 0.01, how the model checks in docs/findings.md (world v1) were made);
+  without clip or backtracking (how the model checks in docs/research/findings.md were made);
 * ``personal``: the meta model fine-tuned as a study with personal updates adapts: ``--personal-updates`` (100)
   updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).

@@ -1,5 +1,10 @@
 """Planning error apart from model error: planners on the true simulator vs explore and the oracle.
 
+A diagnostic of the planner (docs/planning.md, "Planning error"). The run docs/planning.md shows (``--routes 3
+--paper-routes 0 --samples 1 --workers 2``) takes about 6 minutes on a 2-core laptop CPU; each true-model
+decision steps the full simulator, so an episode takes 1-5 minutes of one core, and the paper planner's episodes
+(``--paper-routes``) longer.
+
 Every panel driver (:data:`pernav.diagnostics.panel.PANEL`: named users with headroom, a fast keyboard
 driver, population samples) drives the same episodes (route r with seed 1000 + r) in Town1 and Town3 with:
 

@@ -1,5 +1,8 @@
 """Pool several studies (e.g. the default study at seeds 0, 1, 2) into one paired comparison with 95 % CIs.
 
+Shows how to judge a learner: on the same episodes, over seeds, with intervals. Takes a few seconds (it reads
+results.json files; run the studies first).
+
 Learner results are bitwise reproducible on one machine but only statistically across machines (the
 closed loop amplifies floating-point differences), so a claim about a learner should rest on pooled seeds.
 

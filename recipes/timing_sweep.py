@@ -1,6 +1,9 @@
 """Timing sweep for docs/simulator.md: outcomes and tracking cost vs the lead time of one "turn" prompt.
 
-World v2 draws each prompt's reaction time, so every lead is driven with several seeds (the same seeds at
+Shows why a prompt's timing must be personal: the best lead differs by seconds between drivers. Takes about 40 s
+with ``--seeds 6`` on a 2-core laptop CPU (the default 10 seeds: about a minute).
+
+The world draws each prompt's reaction time, so every lead is driven with several seeds (the same seeds at
 every lead) and the figure shows the share of each outcome and the mean tracking cost; the best lead is the
 shortest lead whose mean cost is within 1 % of the cheapest among the leads clean for at least 80 % of the seeds.
 

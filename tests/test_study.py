@@ -11,7 +11,6 @@ from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
-from pernav.world.drivers import PANEL_POPULATION_SEED, population_samples
 
 METHOD_KEYS = {"tracking_cost", "collisions", "vehicle_collisions", "edge_strikes", "completion", "episodes"}
 SUMMARY_KEYS = {"tracking_cost_mean", "collisions_mean", "collisions_std", "completion_mean"}
@@ -114,40 +113,6 @@ def test_schedule_files_yaml_and_json(tmp_path):
     assert a == b and a[1].profile().reaction_time == 2.5
     with pytest.raises(ScheduleError, match="does not exist"):
         load_schedule(tmp_path / "missing.yaml")
-
-
-RECIPE_CONFIGS = Path(__file__).resolve().parents[1] / "recipes" / "configs"
-
-
-@pytest.mark.parametrize("name, offline_draws", [("headroom.yaml", 0), ("headroom_prior.yaml", 6),
-                                                 ("headroom_prior12.yaml", 12)])
-def test_shipped_schedules_hold_the_population_draws_they_name(name, offline_draws):
-    """The schedule files written out for docs/findings.md parse, and their population drivers are exactly
-    the draws their comments name (so a change to the prior cannot silently change what the docs measured):
-    online, the panel's two; offline, the first draws of ``Population(seed=1)``."""
-    entries = load_schedule(RECIPE_CONFIGS / name)
-
-    def sampled(phase: str) -> list:
-        return [(e.profile(), e.context()) for e in entries if e.phase == phase and not isinstance(e.driver, str)]
-
-    assert sampled("online") == population_samples(2, seed=PANEL_POPULATION_SEED)
-    assert sampled("offline") == population_samples(offline_draws, seed=1)  # 0 draws: none
-    online = [e.label for e in entries if e.phase == "online"]
-    assert online == [e.label for e in load_schedule(RECIPE_CONFIGS / "headroom.yaml") if e.phase == "online"]
-
-
-@pytest.mark.parametrize(("name", "n", "seed"), [("default_prior6", 6, 1), ("default_prior12", 12, 1),
-                                                 ("default_prior6b", 6, 2), ("default_prior6c", 6, 3)])
-def test_default_prior_schedules_are_the_default_schedule_with_offline_draws(name, n, seed):
-    """``default_prior*.yaml`` (docs/findings.md) are the default preset's rounds, unchanged and in order, with
-    the first ``n`` draws of ``Population(seed)`` as offline rounds after the default's offline ones."""
-    entries = load_schedule(RECIPE_CONFIGS / f"{name}.yaml")
-    prior = [e for e in entries if not isinstance(e.driver, str)]
-    assert [e for e in entries if isinstance(e.driver, str)] == preset("default").schedule
-    assert [(e.profile(), e.context()) for e in prior] == population_samples(n, seed=seed)
-    assert all(e.phase == "offline" for e in prior)
-    first_online = next(i for i, e in enumerate(entries) if e.phase == "online")
-    assert all(entries.index(e) < first_online for e in prior)
 
 
 def test_cli_bad_schedule_or_preset_exits_2_and_overwrites_nothing(tmp_path, capsys):
