@@ -94,20 +94,20 @@ def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path, capsys):
 
 def _main_with_methods(argv: list[str], methods: list[str]) -> int:
     """``pernav study`` with the smoke preset restricted to ``methods`` (as the folder's study was run)."""
-    import pernav.study.config as config
+    import pernav.study as study
 
-    original = config.PRESETS["smoke"]
+    original = study.preset
 
-    def smoke():
-        cfg = original()
+    def restricted(name):
+        cfg = original(name)
         cfg.methods = methods
         return cfg
 
-    config.PRESETS["smoke"] = smoke
+    study.preset = restricted  # what `pernav study` reads
     try:
         return main(argv)
     finally:
-        config.PRESETS["smoke"] = original
+        study.preset = original
 
 
 @pytest.mark.slow

@@ -283,3 +283,20 @@ def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, cap
     with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
         main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--tau", "random"])
     assert exit_.value.code == 2 and "--tau" in capsys.readouterr().err and not (tmp_path / "s").exists()
+
+
+def test_every_yaml_preset_loads_validates_and_inherits_its_base(tmp_path, monkeypatch) -> None:
+    import pernav.study.config as config
+
+    for name in config.PRESETS:
+        cfg = config.preset(name)
+        cfg.validate()
+        assert cfg.preset == name
+    personal, default = config.preset("personal"), config.preset("default")
+    assert personal.train.to_dict() == default.train.to_dict() and personal.routes == 4  # base, then its own
+    assert config.preset("smoke").timing["offline_drivers"] == 4 and config.preset("smoke").timing["l2"] == 3.0
+    (tmp_path / "odd.yaml").write_text("towns: [Town1]\nschedule: nowhere\n")
+    monkeypatch.setattr(config, "PRESETS_DIR", tmp_path)
+    monkeypatch.setattr(config, "PRESETS", ("odd",))
+    with pytest.raises(config.PresetError, match="schedule must be one of"):
+        config.preset("odd")

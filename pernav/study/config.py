@@ -1,4 +1,5 @@
-"""Study configuration and presets (``smoke``, ``default``, ``paper``, ``personal``, ``personal_paper``).
+"""Study configuration and its presets, one YAML file each in ``pernav/study/presets/`` (``smoke``, ``default``,
+``paper``, ``personal``, ``personal_paper``, ``personal_sweep``).
 
 Example:
     >>> cfg = preset("smoke")
@@ -9,7 +10,10 @@ Example:
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
+
+import yaml
 
 from pernav.study.headroom import personal_schedule, sweep_schedule
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
@@ -111,70 +115,43 @@ class StudyConfig:
         check_recorded(self.schedule, self.towns, self.train.K)  # recorded drives: their towns and K
 
 
-def _select(labels: list[str]) -> list[Entry]:
-    by_label = {e.label: e for e in paper_schedule()}
-    return [by_label[x] for x in labels]
+PRESETS_DIR = Path(__file__).parent / "presets"
+#: the named presets: ``pernav/study/presets/NAME.yaml``
+PRESETS = tuple(sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")))
+#: the schedules a preset may name; ``{"paper": [labels]}`` picks the paper's entries by label
+SCHEDULES = {"paper": paper_schedule, "personal": personal_schedule, "sweep": sweep_schedule}
 
 
-def _smoke() -> StudyConfig:
-    return StudyConfig(
-        preset="smoke", towns=["Town1"], schedule=_select(["Offline 0", "Online 0", "Online 8"]),
-        routes=1, rollouts=1, offline_trajectories=2, n_traffic=2,
-        train=TrainConfig(updates=3, batch=32, warm_updates=20, hidden=[32, 32], rounds_per_update=2, ensemble=2,
-                          personal_updates=5),
-        planner={"kind": "retime"}, collect="retimed", calibration=1, methods=list(METHODS),
-        timing={**TIMING_DEFAULTS, "offline_drivers": 4})
+def _schedule(spec: Any, name: str) -> list[Entry]:
+    if isinstance(spec, dict) and list(spec) == ["paper"]:
+        by_label = {e.label: e for e in paper_schedule()}
+        missing = [x for x in spec["paper"] if x not in by_label]
+        if missing:
+            raise PresetError(f"preset {name}: no paper entry labelled {missing[0]!r}")
+        return [by_label[x] for x in spec["paper"]]
+    if spec not in SCHEDULES:
+        raise PresetError(f"preset {name}: schedule must be one of {', '.join(SCHEDULES)} or {{paper: [labels]}}")
+    return SCHEDULES[spec]()
 
 
-def _default() -> StudyConfig:
-    # Two towns (Town3 has a roundabout); six online rounds: a vehicle change (cybertruck), fog, and three
-    # other users; ~10 minutes on a 2-core laptop with 2 workers.
-    labels = ["Offline 0", "Offline 1", "Offline 2", "Online 0", "Online 2", "Online 5", "Online 8",
-              "Online 9", "Online 11"]
-    return StudyConfig(
-        preset="default", towns=["Town1", "Town3"], schedule=_select(labels),
-        routes=3, rollouts=2, offline_trajectories=3, n_traffic=4,
-        # three smaller models rather than one large: the planner leaves explore only where all three agree;
-        # a 10-step history spans a prompt, the driver's reaction and the turn (memory is 8-30 s)
-        train=TrainConfig(updates=50, batch=128, warm_updates=300, rounds_per_update=2, hidden=[128, 128], K=10,
-                          ensemble=3),
-        # calibration drives + personal updates (--calibration 4 --personal-updates 100) are not the default:
-        # over 3 seeds they closed 22 % [-12 %, 66 %] of Town3's gap but added 2 collisions and 45 % run time
-        # (docs/findings.md, "End to end with calibration drives and personal updates"; world v1)
-        collect="retimed")
-
-
-def _personal(paper_sized: bool = False) -> StudyConfig:
-    # the headroom benchmark (pernav.study.headroom, docs/personal.md): sixteen online rounds across the spectrum
-    # of drivers, ten of them outside explore's slack; the default preset's learning options
-    cfg = _default()
-    cfg.preset = "personal_paper" if paper_sized else "personal"
-    cfg.schedule = personal_schedule()
-    cfg.routes = 10 if paper_sized else 4
-    cfg.towns = list(TOWN_NAMES) if paper_sized else ["Town1", "Town3"]
-    cfg.methods = ["explore", "sysid", "adapt", "timing", "oracle"]
-    return cfg
-
-
-def _paper() -> StudyConfig:
-    return StudyConfig(preset="paper", towns=list(TOWN_NAMES), schedule=paper_schedule(), routes=10, rollouts=4,
-                       offline_trajectories=4, n_traffic=8)
-
-
-def _personal_sweep() -> StudyConfig:
-    # the headroom sweep: the average driver with its reaction time shifted (pernav.study.headroom.SWEEP_SHIFTS)
-    cfg = _personal()
-    cfg.preset, cfg.schedule = "personal_sweep", sweep_schedule()
-    cfg.methods = ["explore", "adapt", "timing", "oracle"]
-    return cfg
-
-
-PRESETS = {"smoke": _smoke, "default": _default, "paper": _paper, "personal": _personal,
-           "personal_paper": lambda: _personal(paper_sized=True), "personal_sweep": _personal_sweep}
+def _preset_fields(name: str) -> dict[str, Any]:
+    """The preset's fields, its ``base`` preset's first (a preset's ``train`` and ``timing`` add to the base's)."""
+    fields = yaml.safe_load((PRESETS_DIR / f"{name}.yaml").read_text()) or {}
+    base = fields.pop("base", None)
+    if base is None:
+        return fields
+    merged = _preset_fields(base)
+    for key, value in fields.items():
+        merged[key] = {**merged.get(key, {}), **value} if key in ("train", "timing") else value
+    return merged
 
 
 def preset(name: str) -> StudyConfig:
-    """A fresh copy of a preset's configuration."""
+    """A fresh copy of a preset's configuration (``pernav/study/presets/NAME.yaml``)."""
     if name not in PRESETS:
         raise PresetError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
-    return PRESETS[name]()
+    fields = _preset_fields(name)
+    fields["schedule"] = _schedule(fields.get("schedule"), name)
+    fields["train"] = TrainConfig(**fields.get("train", {}))
+    fields["timing"] = {**TIMING_DEFAULTS, **fields.get("timing", {})}
+    return StudyConfig(preset=name, **fields)
