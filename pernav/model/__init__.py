@@ -2,7 +2,7 @@
 
 from pernav.model.adapt import adapt, meta_parameters, trajectory_windows
 from pernav.model.dynamics import DELTAS, DynamicsModel, EgocentricDifferences, PlainDifferences, apply_delta, ego_delta
-from pernav.model.imagined import ImaginedEnv
+from pernav.model.imagined import ImaginedEnv, PlainWorldModel
 from pernav.model.losses import multistep_loss, single_step_loss, using
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 
@@ -13,6 +13,7 @@ __all__ = [
     "ImaginedEnv",
     "ImaginedNavigationEnv",
     "PlainDifferences",
+    "PlainWorldModel",
     "adapt",
     "apply_delta",
     "ego_delta",

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import ModelBasedEnvBase
@@ -32,6 +31,7 @@ from torchrl.modules import WorldModelWrapper
 
 from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y, road_points
+from pernav.model.imagined import PlainWorldModel
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
@@ -105,14 +105,13 @@ class _TrackingReward(nn.Module):
         return -tracking_cost(position, goal).unsqueeze(-1)
 
 
-def make_world_model(model: DynamicsModel) -> WorldModelWrapper:
-    """``WorldModelWrapper`` of ``model``: (history, action) -> (observation, history), reward."""
+def make_world_model(model: DynamicsModel) -> PlainWorldModel:
+    """``WorldModelWrapper`` of ``model`` (a :class:`~pernav.model.imagined.PlainWorldModel`): (history, action)
+    -> (observation, history), reward."""
     if model.K < 2:
         raise ValueError("the world model needs K >= 2 (the reward reads the previous state's goal)")
-    transition = TensorDictModule(_Transition(model), in_keys=["history", "action"],
-                                  out_keys=["observation", "history"])
-    reward = TensorDictModule(_TrackingReward(), in_keys=["history"], out_keys=["reward"])
-    return WorldModelWrapper(transition, reward)
+    return PlainWorldModel((_Transition(model), ["history", "action"], ["observation", "history"]),
+                           (_TrackingReward(), ["history"], ["reward"]))
 
 
 class ImaginedNavigationEnv(ModelBasedEnvBase):

@@ -9,8 +9,11 @@ first ``done`` are ignored, as in TorchRL's planners), plus an optional terminal
 the first action of the best sequence (receding horizon).
 
 Any env whose action spec is ``Categorical`` or ``OneHot`` and that steps batches of any size: a
-``ModelBasedEnvBase`` (a learned model, stepped through its ``world_model`` without ``env.step``'s
-bookkeeping) or any stateless ``EnvBase``. An action mask (``mask_key``: ``[..., A]`` for every level, or
+``ModelBasedEnvBase`` (a learned model) or any stateless ``EnvBase``. Nodes are stepped with ``env.step``, so a
+sequence scores exactly as ``env.rollout`` would play it (the env's own ``_step``, reward, done and
+``world_model_params``); a plain world model (:class:`~pernav.model.PlainWorldModel`) in an env whose step is
+its world model alone is stepped on plain tensors instead, the same computation without TensorDicts
+(:attr:`DiscreteTreeSearchPlanner.fast_path`). An action mask (``mask_key``: ``[..., A]`` for every level, or
 ``[..., H, A]`` one per level) prunes forbidden actions from the tree. The input tensordict may have any
 batch shape; each root is searched on its own, all in the same batched env calls.
 
@@ -50,7 +53,7 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torchrl.data import Categorical, Composite, OneHot
 from torchrl.envs import ModelBasedEnvBase
@@ -157,36 +160,29 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         key = self.reward_key[1:] if self.reward_key[0] == "next" and len(self.reward_key) > 1 else self.reward_key
         return key[0] if len(key) == 1 else key
 
-    def _program(self) -> list | None:
-        """The world model as (in_keys, out_keys, module) steps run on plain tensors: the TensorDictModules of a
-        ``ModelBasedEnvBase``'s world model called without a TensorDict per call (a third of a decision's time
-        at the navigation's size). ``None`` where the env is not built that way (then ``env.step``)."""
-        if not self.model_based:
-            return None
-        modules = list(self.env.world_model.module) if hasattr(self.env.world_model, "module") \
-            and isinstance(self.env.world_model.module, torch.nn.ModuleList) else [self.env.world_model]
-        if not all(isinstance(m, TensorDictModule) and not m._kwargs for m in modules):
-            return None
-        return [(list(m.in_keys), list(m.out_keys), m.module) for m in modules]
+    @property
+    def fast_path(self) -> bool:
+        """Whether a level is stepped by the world model's ``tensor_step`` on plain tensors (no TensorDict per
+        call: a third of a decision's time at the navigation's size). Only where that is provably the env's
+        step: a ``ModelBasedEnvBase`` whose ``_step`` is TorchRL's own (the world model and nothing else), with
+        no ``world_model_params``/``world_model_buffers``, and a world model that offers ``tensor_step``
+        (:class:`~pernav.model.PlainWorldModel`). Elsewhere the env's own ``step``."""
+        env = self.env
+        return (self.model_based and type(env)._step is ModelBasedEnvBase._step
+                and env.world_model_params is None and env.world_model_buffers is None
+                and callable(getattr(env.world_model, "tensor_step", None)))
 
     def _step(self, nodes: dict, actions: torch.Tensor) -> dict:
         """The children of flat nodes (``{key: [M, ...]}``) after ``actions`` ``[M]``: every entry the env's step
-        writes (next state, reward, done)."""
+        writes (next state, reward, done), as ``env.step`` computes them (its ``_step``, reward and done)."""
         data = dict(nodes)
         data[self.action_key] = torch.nn.functional.one_hot(actions, self.n_actions) if self.one_hot else actions
-        if not hasattr(self, "_program_cache"):  # the env's world model does not change: inspect it once
-            self._program_cache = self._program()
-        program = self._program_cache
-        if program is not None:
-            for in_keys, out_keys, module in program:
-                out = module(*(data[k] for k in in_keys))
-                data.update(zip(out_keys, out if isinstance(out, tuple) else (out,), strict=True))
-            return data
-        td = TensorDict(batch_size=[actions.shape[0]])
+        if self.fast_path:
+            return self.env.world_model.tensor_step(data)
+        td = TensorDict(batch_size=[actions.shape[0]], device=actions.device)
         for key, value in data.items():
             td.set(key, value)
-        step = self.env.step(td) if not self.model_based else self.env.world_model(td)
-        out = step.get("next") if not self.model_based else step
+        out = self.env.step(td).get("next")
         return {key: out.get(key) for key in out.keys(True, True)}
 
     @staticmethod
