@@ -347,3 +347,66 @@ def test_fast_path_only_where_it_is_the_env_step() -> None:
     env = ImaginedEnv(model, *args)
     env.world_model_params = TensorDict.from_module(env.world_model)
     assert not DiscreteTreeSearchPlanner(env, 2).fast_path
+
+
+# ----- devices and dtypes: every tensor the search makes follows the roots -------------------------------------
+def _imagined_env(dtype: torch.dtype = torch.float32, device: str = "cpu"):
+    from pernav.model import ImaginedEnv
+
+    torch.manual_seed(0)
+    model = DynamicsModel(state_dim=3, n_actions=3, K=2, hidden=(8,)).to(device=device, dtype=dtype)
+    return ImaginedEnv(model, lambda s, a, n: -n[..., 0].abs(), lambda n: n[..., 1] > 0.3)
+
+
+def _imagined_roots(dtype: torch.dtype = torch.float32, device: str = "cpu") -> TensorDict:
+    g = torch.Generator().manual_seed(1)
+    return TensorDict({"observation": torch.randn(4, 3, generator=g).to(dtype),
+                       "history": torch.randn(4, 2, 6, generator=g).to(dtype),
+                       "mask": torch.rand(4, 3, generator=g) < 0.7}, [4], device=device)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("make", ["imagined", "wall"])
+def test_search_makes_its_tensors_on_the_roots_device(make: str, dtype: torch.dtype) -> None:
+    """With the default device elsewhere (``meta``), a search on CPU roots still runs on the CPU and decides as
+    before: no tensor is made without ``device=``. A float64 env is planned in float64."""
+    if make == "imagined":
+        env, roots, H = _imagined_env(dtype), _imagined_roots(dtype), 3
+        roots["mask"][:, 0] = True
+    else:
+        env, H = WallEnv(dtype=dtype), 3
+        roots = TensorDict({"x": torch.tensor([[1.0], [0.0]], dtype=dtype), "mask": torch.tensor(
+            [[True, True, True], [True, False, True]])}, [2])
+    planners = [DiscreteTreeSearchPlanner(env, H, mask_key=key) for key in (None, "mask")]
+    expected = [p.search(roots.clone()) for p in planners]
+    with torch.device("meta"):
+        found = [p.search(roots.clone()) for p in planners]
+        actions = planners[1](roots.clone())["action"]
+    for e, f in zip(expected, found, strict=True):
+        assert f.actions.device.type == "cpu" and torch.equal(f.actions, e.actions)
+        assert f.returns.dtype == dtype and torch.equal(f.returns, e.returns)
+    assert torch.equal(actions, expected[1].actions[:, 0])
+    if make == "wall":
+        seqs, rets = _rollout_brute_force(env, roots.exclude("mask"), H)
+        assert torch.equal(expected[0].actions, seqs)
+
+
+def test_allowed_follows_the_roots_device() -> None:
+    planner = DiscreteTreeSearchPlanner(WallEnv(device="meta"), 2)
+    roots = TensorDict({"x": torch.zeros(3, 1)}, [3]).to("meta")
+    assert planner.allowed(roots, 0).device.type == "meta"
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA device here"))])
+def test_planner_equals_rollout_brute_force_on_the_env_device(device: str) -> None:
+    env = WallEnv(device=device)
+    roots = TensorDict({"x": torch.tensor([[1.0], [-1.0]])}, [2], device=device)
+    seqs, rets = _rollout_brute_force(env, roots, 3)
+    result = DiscreteTreeSearchPlanner(env, 3).search(roots.clone())
+    assert result.actions.device.type == device
+    assert torch.equal(result.actions.cpu(), seqs)
+    torch.testing.assert_close(result.returns.double().cpu(), rets)
+    imagined, start = _imagined_env(device=device), _imagined_roots(device=device)
+    planned = DiscreteTreeSearchPlanner(imagined, 2)(start.exclude("mask"))
+    assert planned["action"].device.type == device

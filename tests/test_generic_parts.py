@@ -192,3 +192,22 @@ def test_round_buffers_sample_long_trajectories_as_before(tmp_path):
         assert torch.equal(got["observation"], expected["observation"]) and torch.equal(got["traj"], expected["traj"])
     buffers.save(tmp_path / "rb")
     assert RoundBuffers.load(tmp_path / "rb").lengths == buffers.lengths
+
+
+def test_imagined_envs_never_move_the_callers_model():
+    """``ModelBasedEnvBase`` moves its world model in place: a model env on another device than its model is
+    refused (the caller's model and optimizer stay where they are); by default the env takes the model's device."""
+    from pernav.model import ImaginedEnv
+
+    model = DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,))
+    for make in (lambda m, **kw: ImaginedEnv(m, lambda s, a, n: n[..., 0], **kw),
+                 lambda m, **kw: ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))), **kw)):
+        with pytest.raises(ValueError, match=r"device='meta'\) would move the model \(on cpu\) in place"):
+            make(model, device="meta")
+    assert all(p.device.type == "cpu" for p in model.parameters())
+    on_meta = model.to("meta")
+    env = ImaginedEnv(on_meta, lambda s, a, n: n[..., 0])
+    assert env.device.type == "meta" and env.observation_spec["observation"].device.type == "meta"
+    assert ImaginedEnv(on_meta, lambda s, a, n: n[..., 0], device="meta").dynamics is on_meta
+    double = ImaginedEnv(DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,)).double(), lambda s, a, n: n[..., 0])
+    assert double.observation_spec["history"].dtype == torch.float64

@@ -34,7 +34,7 @@ from torchrl.modules import WorldModelWrapper
 
 from pernav.model.dynamics import DynamicsModel
 
-__all__ = ["ImaginedEnv", "PlainWorldModel"]
+__all__ = ["ImaginedEnv", "PlainWorldModel", "model_device"]
 
 RewardFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 TerminationFn = Callable[[torch.Tensor], torch.Tensor]
@@ -73,6 +73,25 @@ class PlainWorldModel(WorldModelWrapper):
         return data
 
 
+def model_device(model: nn.Module, device: str | torch.device | None = None, owner: str = "ImaginedEnv") -> torch.device:
+    """The device of a model env around ``model``: the model's own (``device=None``), or ``device`` where the model
+    already lives. A model elsewhere is refused, not moved: ``ModelBasedEnvBase`` moves its world model in place,
+    which would move the caller's model (and the optimizer's parameters) under them.
+
+    >>> model_device(nn.Linear(2, 2)).type
+    'cpu'
+    """
+    tensors = [*model.parameters(), *model.buffers()]
+    here = tensors[0].device if tensors else torch.device("cpu")
+    if device is None:
+        return here
+    device = torch.device(device)
+    if device.type != here.type or (device.index is not None and here.index is not None and device.index != here.index):
+        raise ValueError(f"{owner}(device={str(device)!r}) would move the model (on {here}) in place; move it "
+                         f"yourself first (model.to({str(device)!r})), or leave device=None to use the model's device")
+    return here
+
+
 class _Imagine(nn.Module):
     """One imagined step: next state, next window, reward and done."""
 
@@ -99,24 +118,28 @@ class ImaginedEnv(ModelBasedEnvBase):
         model: the dynamics model (any ``state_dim``, ``n_actions``).
         reward_fn: ``(state [..., S], action [...] (categorical), next_state [..., S]) -> reward [...]``.
         termination_fn: ``next_state -> bool [...]`` (an imagined failure ends the rollout's reward), or ``None``.
+        device: the env's device: the model's (``None``), or the device the model already lives on (a model
+            elsewhere is refused, not moved in place: :func:`model_device`).
 
     Reset needs a starting point (``"observation"`` and ``"history"``, e.g. a real env's current tensordict);
     without one it starts from the zero state.
     """
 
     def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
-                 device: str | torch.device = "cpu") -> None:
+                 device: str | torch.device | None = None) -> None:
+        device = model_device(model, device, type(self).__name__)
         transition = (_Imagine(model, reward_fn, termination_fn), ["observation", "history", "action"],
                       ["observation", "history", "reward", "done", "terminated"])
         keep = (nn.Identity(), ["reward"], ["reward"])  # the reward is computed with the step
         super().__init__(PlainWorldModel(transition, keep), device=device)
         self.dynamics = model
-        obs = Composite(observation=Unbounded((model.state_dim,)),
-                        history=Unbounded((model.K, model.state_dim + model.n_actions)))
+        dtype = model.out_mean.dtype  # a float64 model imagines float64 states
+        obs = Composite(observation=Unbounded((model.state_dim,), dtype=dtype),
+                        history=Unbounded((model.K, model.state_dim + model.n_actions), dtype=dtype))
         self.observation_spec = obs
         self.state_spec = obs.clone()
         self.action_spec = Categorical(model.n_actions)
-        self.reward_spec = Unbounded((1,))
+        self.reward_spec = Unbounded((1,), dtype=dtype)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         given = tensordict is not None and {"history", "observation"} <= set(tensordict.keys())

@@ -31,7 +31,7 @@ from torchrl.modules import WorldModelWrapper
 
 from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, VX, VY, DynamicsModel, X, Y, road_points
-from pernav.model.imagined import PlainWorldModel
+from pernav.model.imagined import PlainWorldModel, model_device
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
@@ -121,16 +121,19 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
     real env's current tensordict). The episode never ends by itself (the planner decides the horizon).
     """
 
-    def __init__(self, world_model: WorldModelWrapper, device: str | torch.device = "cpu") -> None:
-        super().__init__(world_model, device=device)
+    def __init__(self, world_model: WorldModelWrapper, device: str | torch.device | None = None) -> None:
+        # the world model's device (None), or the one it already lives on: never moved in place under its owner
+        super().__init__(world_model, device=model_device(world_model, device, type(self).__name__))
         model = world_model[0].module.model
         self.dynamics: DynamicsModel = model
         width = model.state_dim + model.n_actions
-        obs = Composite(observation=Unbounded((model.state_dim,)), history=Unbounded((model.K, width)))
+        dtype = model.out_mean.dtype  # a float64 model imagines float64 states
+        obs = Composite(observation=Unbounded((model.state_dim,), dtype=dtype),
+                        history=Unbounded((model.K, width), dtype=dtype))
         self.observation_spec = obs
         self.state_spec = obs.clone()
         self.action_spec = Categorical(model.n_actions)
-        self.reward_spec = Unbounded((1,))
+        self.reward_spec = Unbounded((1,), dtype=dtype)
 
     @torch.no_grad()
     def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list[TensorDictBase | None] | None = None,

@@ -77,6 +77,11 @@ def _key(key: NestedKey) -> tuple[str, ...]:
     return (key,) if isinstance(key, str) else tuple(key)
 
 
+def _device(roots: TensorDictBase, keys: list) -> torch.device:
+    """Where the roots' state lives (a TensorDict without a device of its own: its first state entry's)."""
+    return roots.device if roots.device is not None else roots.get(keys[0]).device
+
+
 class DiscreteTreeSearchPlanner(MPCPlannerBase):
     """Exhaustive or beam tree search over a discrete action space, scored by the env's reward.
 
@@ -137,7 +142,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """``[B, A]`` booleans: the actions each root's tree may take at ``level`` (from ``mask_key``; ``mask``:
         that entry already read, as :meth:`search` does once per search)."""
         if self.mask_key is None:
-            return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool)
+            return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool, device=_device(roots, self.state_keys))
         mask = roots.get(self.mask_key).bool() if mask is None else mask
         return mask[:, level] if mask.ndim == 3 else mask
 
@@ -199,12 +204,13 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         H = self.levels(roots)
         mask = None if self.mask_key is None else roots.get(self.mask_key).bool()  # once per search, not per level
         nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
+        device = _device(roots, self.state_keys)  # every tensor made here lives with the roots' state
         parent_count = 1
-        seqs = torch.zeros(B, 1, 0, dtype=torch.long)
-        ret = torch.zeros(B, 1)
+        seqs = torch.zeros(B, 1, 0, dtype=torch.long, device=device)
+        ret = torch.zeros(B, 1, device=device)  # promoted to the reward's dtype (float64 stays float64)
         alive = None  # [B, N] not done yet (later rewards count); None: no node done so far
-        valid = torch.ones(B, 1, dtype=torch.bool)  # a real node (not padding of a root with fewer nodes)
-        rows = torch.arange(B).unsqueeze(-1)
+        valid = torch.ones(B, 1, dtype=torch.bool, device=device)  # a real node (not padding of a root with fewer nodes)
+        rows = torch.arange(B, device=device).unsqueeze(-1)
         evaluations = 0
         for level in range(H):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
@@ -215,7 +221,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
                     self._refuse_unplannable(level_allowed, level)
                 keep = None
                 k = parent_count * actions.numel()
-                index = torch.arange(parent_count).repeat_interleave(actions.numel())
+                index = torch.arange(parent_count, device=device).repeat_interleave(actions.numel())
                 parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
             else:
                 if not bool(level_allowed.any(-1).all()):
@@ -243,7 +249,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             seqs = torch.cat([seqs.reshape(B * seqs.shape[1], level)[index].reshape(B, k, level), action.unsqueeze(-1)], -1)
             nodes = {key: out[key] for key in self.state_keys}  # flat [B * k, ...]
             parent_count = k
-            valid = keep if keep is not None else torch.ones(B, k, dtype=torch.bool)
+            valid = keep if keep is not None else torch.ones(B, k, dtype=torch.bool, device=device)
             if keep is not None:
                 ret = torch.where(valid, ret, torch.full_like(ret, float("-inf")))
             if self.beam_width is not None and k > self.beam_width and level + 1 < H:
@@ -268,7 +274,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             self.nonfinite += 1
             log.warning("DiscreteTreeSearchPlanner: %d non-finite sequence returns", int((~finite).sum()))
         best = torch.nan_to_num(ret, nan=float("-inf")).argmax(-1)  # the first best: ties go to the lower sequence
-        return SearchResult(seqs[torch.arange(B), best], ret[torch.arange(B), best], evaluations)
+        return SearchResult(seqs[rows[:, 0], best], ret[rows[:, 0], best], evaluations)
 
     def _refuse_unplannable(self, allowed: torch.Tensor, level: int) -> None:
         """Raise for roots whose ``allowed`` ``[B, A]`` row is all false: no sequence exists there, and the search

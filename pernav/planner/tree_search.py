@@ -114,14 +114,15 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
         shifted = roots["explore_plan"].long()[:, : H + 2 * self.shift].unfold(-1, H, 1)  # [B, 2S + 1, H]
         instruction = sequences.div(self.playbacks, rounding_mode="floor")
         match = (instruction.unsqueeze(2) == shifted.unsqueeze(1)).all(-1)  # [B, N, 2S + 1]
-        k = torch.arange(shifted.shape[1], dtype=torch.get_default_dtype()) - (shifted.shape[1] - 1) / 2
+        k = torch.arange(shifted.shape[1], dtype=torch.get_default_dtype(), device=sequences.device) \
+            - (shifted.shape[1] - 1) / 2
         weight = 1.0 - self.shift_decay * k.abs()  # a shift must buy its cost: explore itself wins ties
         return self.bonus * (match.to(weight.dtype) * weight).amax(-1)
 
     def _penalties(self, actions: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """``penalty`` for each turn/roundabout prompt in ``actions`` ``[B, N]`` that ``mask`` ``[B, A]`` forbids."""
         instruction = actions.div(self.playbacks, rounding_mode="floor")
-        is_prompt = torch.isin(instruction, torch.tensor(TURN_INSTRUCTIONS))
+        is_prompt = torch.isin(instruction, torch.tensor(TURN_INSTRUCTIONS, device=instruction.device))
         return self.penalty * (is_prompt & ~mask.gather(-1, actions)).to(torch.get_default_dtype())
 
     def _explore(self, roots: TensorDictBase, H: int) -> torch.Tensor:
