@@ -211,3 +211,40 @@ def test_imagined_envs_never_move_the_callers_model():
     assert ImaginedEnv(on_meta, lambda s, a, n: n[..., 0], device="meta").dynamics is on_meta
     double = ImaginedEnv(DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,)).double(), lambda s, a, n: n[..., 0])
     assert double.observation_spec["history"].dtype == torch.float64
+
+
+def test_dynamics_model_refuses_continuous_actions():
+    from torchrl.data import Bounded, OneHot
+
+    assert DynamicsModel(state_dim=3, n_actions=Categorical(4), K=1, hidden=(8,)).n_actions == 4
+    assert DynamicsModel(state_dim=3, n_actions=OneHot(5), K=1, hidden=(8,)).n_actions == 5
+    with pytest.raises(ValueError, match=r"discrete actions .* continuous action spec Bounded\w*\(shape=\(1,\)"):
+        DynamicsModel(state_dim=3, n_actions=Bounded(-2.0, 2.0, (1,)), K=1, hidden=(8,))
+    model = DynamicsModel(state_dim=3, n_actions=1, K=1, hidden=(8,))  # Pendulum's torque as "one action"
+    history = torch.zeros(2, 1, 4)
+    with pytest.raises(ValueError, match=r"floating-point action of shape \(2, 1\) that is not one-hot"):
+        model(history, torch.tensor([[-2.0], [2.0]]))
+    assert model(history, torch.tensor([[1.0], [1.0]])).shape == (2, 3)  # one-hot over one action
+    two = DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,))
+    assert torch.equal(two(torch.zeros(2, 1, 5), torch.tensor([[0.0, 1.0], [1.0, 0.0]])),
+                       two(torch.zeros(2, 1, 5), torch.tensor([1, 0])))
+
+
+def test_dynamics_model_float64_windows_need_a_float64_model():
+    model = DynamicsModel(state_dim=3, n_actions=2, K=2, hidden=(8,))
+    window, action = torch.randn(4, 2, 5, dtype=torch.float64), torch.tensor([0, 1, 1, 0])
+    with pytest.raises(TypeError, match=r"a torch.float64 window for a torch.float32 model; convert one to the other"):
+        model(window, action)
+    model.double()
+    model.fit_normalization(window, action, torch.randn(4, 3, dtype=torch.float64))
+    assert model(window, action).dtype == torch.float64
+
+
+def test_history_window_records_a_scalar_observation_as_one_column():
+    """FrozenLake's observation is a cell index (Categorical, shape ()): one column of the window."""
+    env = TransformedEnv(GymEnv("FrozenLake-v1", categorical_action_encoding=True), HistoryWindow(K=2))
+    check_env_specs(env, seed=0)
+    data = env.rollout(4)
+    assert data["history"].shape == (data.shape[0], 2, 1 + 4)
+    assert torch.equal(data["next", "history"][:, -1, 0], data["next", "observation"].float())
+    assert torch.equal(data["next", "history"][:, -2, 1:].argmax(-1), data["action"])

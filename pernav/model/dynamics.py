@@ -26,6 +26,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDictBase
 from torch import nn
+from torchrl.data import Categorical, OneHot, TensorSpec
 from torchrl.modules import MLP
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
@@ -188,6 +189,25 @@ class PlainDifferences:
 DELTAS = {"egocentric": EgocentricDifferences, "plain": PlainDifferences}
 
 
+def _discrete_actions(n_actions: int | TensorSpec) -> int:
+    """The number of actions of an int or a discrete action spec; ``ValueError`` for a continuous spec."""
+    if not isinstance(n_actions, TensorSpec):
+        return int(n_actions)
+    if isinstance(n_actions, (Categorical, OneHot)):
+        return int(n_actions.space.n)
+    raise ValueError(f"DynamicsModel models discrete actions (n_actions: an int, a Categorical or a OneHot spec); "
+                     f"got the continuous action spec {type(n_actions).__name__}(shape={tuple(n_actions.shape)}, "
+                     f"dtype={n_actions.dtype}): its actions would be one-hot encoded and lost")
+
+
+def _check_one_hot(action: torch.Tensor, n_actions: int) -> None:
+    """``ValueError`` unless a floating-point ``action`` is one-hot over ``n_actions`` (a continuous action is not)."""
+    if action.shape[-1:] != (n_actions,) or not bool(((action == 0) | (action == 1)).all() and (action.sum(-1) == 1).all()):
+        raise ValueError(f"DynamicsModel takes discrete actions (integers [...] or one-hot [..., {n_actions}]); got a "
+                         f"floating-point action of shape {tuple(action.shape)} that is not one-hot: a continuous "
+                         "action would be one-hot encoded and lost")
+
+
 def _safe_std(x: torch.Tensor) -> torch.Tensor:
     """Per-column std; a column constant in the data (e.g. no roundabout in this town) gets 1, not a tiny
     value that would blow up when the column varies later."""
@@ -200,7 +220,8 @@ class DynamicsModel(nn.Module):
 
     Args:
         state_dim: state size (14, the paper's state; any size with ``delta="plain"``).
-        n_actions: 7, or 21 with playback speed (any number of discrete actions).
+        n_actions: 7, or 21 with playback speed (any number of discrete actions), or the env's action spec
+            (``Categorical`` or ``OneHot``; a continuous spec is refused: the model one-hot encodes its actions).
         K: history length (rows of the window).
         hidden: hidden layer widths ([256, 256, 256] in the paper).
         road: points of the planned route ahead it also reads (:func:`road_points`, 6 m apart, at most
@@ -224,10 +245,11 @@ class DynamicsModel(nn.Module):
     torch.Size([3, 5, 21])
     """
 
-    def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
+    def __init__(self, state_dim: int = STATE_DIM, n_actions: int | TensorSpec = 7, K: int = 5,
                  hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0,
                  delta: str | EgocentricDifferences | PlainDifferences = "auto") -> None:
         super().__init__()
+        n_actions = _discrete_actions(n_actions)
         if int(state_dim) < 1 or int(n_actions) < 1:
             raise ValueError(f"state_dim and n_actions must be >= 1, got {state_dim} and {n_actions}")
         if isinstance(delta, str):
@@ -259,6 +281,8 @@ class DynamicsModel(nn.Module):
     # ----- window <-> features -------------------------------------------------------------------
     def with_action(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The window with ``action`` (categorical ``[...]`` or one-hot) in its newest row."""
+        if action.is_floating_point():  # a one-hot action, or a continuous one the one-hot code would drop
+            _check_one_hot(action, self.n_actions)
         one_hot = self.window._one_hot(action, history.ndim - 2).to(history.dtype)
         newest = torch.cat([history[..., -1, : self.state_dim], one_hot], dim=-1).unsqueeze(-2)
         return torch.cat([history[..., :-1, :], newest], dim=-2)
@@ -266,6 +290,9 @@ class DynamicsModel(nn.Module):
     def features(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """Flat features of a window with its action, ``[..., n_features]``, as the model's ``delta`` object
         reads it (:class:`EgocentricDifferences`, :class:`PlainDifferences`)."""
+        if window.dtype != self.in_mean.dtype:
+            raise TypeError(f"DynamicsModel: a {window.dtype} window for a {self.in_mean.dtype} model; convert one "
+                            f"to the other (model.to({window.dtype}), or the data)")
         if self.road and (road is None or road.shape[-2] < self.road):
             raise ValueError(f"this model reads {self.road} road points ahead: pass road [..., >= {self.road}, 2] "
                              f"(road_points of the route), got {None if road is None else tuple(road.shape)}")
