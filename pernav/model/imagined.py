@@ -6,7 +6,7 @@ The transition reads ``"history"`` (the :class:`~pernav.transforms.HistoryWindow
 (never, without one). So a planner (:class:`~pernav.planner.DiscreteTreeSearchPlanner`) or ``env.rollout``
 imagines with the learned model and scores with the task's known reward, as in model-based RL (PETS, GrBAL);
 adapted parameters are swapped in with ``with params.to_module(model): ...``. The navigation's own model env,
-with its tracking reward and route-aware imagination, is :class:`~pernav.model.world_model.ImaginedNavigationEnv`.
+with its tracking reward and route-aware imagination, is :class:`~pernav.model.navigation.ImaginedNavigationEnv`.
 
 Example:
     >>> import torch

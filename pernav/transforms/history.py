@@ -36,15 +36,14 @@ class HistoryWindow(Transform):
     ``Categorical``) is one column of the window, its value; one-hot encode it first to give the model its category.
 
     Example:
-        >>> from torchrl.envs import TransformedEnv
-        >>> from pernav.env.torchrl_env import explore_module, make_torchrl_env
-        >>> env = TransformedEnv(make_torchrl_env(config={"n_traffic": 2}, seed=0), HistoryWindow(K=4))
-        >>> td = env.rollout(3, policy=explore_module())
+        >>> from torchrl.envs import GymEnv, TransformedEnv
+        >>> env = TransformedEnv(GymEnv("CartPole-v1", categorical_action_encoding=True), HistoryWindow(K=4))
+        >>> td = env.rollout(3)
         >>> td["history"].shape
-        torch.Size([3, 4, 21])
-        >>> bool((td["next", "history"][1, -1, :14] == td["next", "observation"][1]).all())
+        torch.Size([3, 4, 6])
+        >>> bool((td["next", "history"][1, -1, :4] == td["next", "observation"][1]).all())
         True
-        >>> int(td["next", "history"][1, -2, 14:].argmax()) == int(td["action"][1])
+        >>> int(td["next", "history"][1, -2, 4:].argmax()) == int(td["action"][1])
         True
     """
 
