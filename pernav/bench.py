@@ -129,7 +129,7 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     import torch
 
     from pernav.model import DynamicsModel
-    from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     from pernav.planner import RetimingPlanner, TreeSearchPlanner
 
     torch.manual_seed(0)

@@ -40,7 +40,7 @@ from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import env_planning_config
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.runner import final_models

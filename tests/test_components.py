@@ -365,9 +365,13 @@ def _doc_blocks() -> list[str]:
 
 
 @pytest.mark.parametrize("index", range(7))
-def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch) -> None:
-    """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it)."""
+def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch, capfd) -> None:
+    """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it):
+    it writes nothing into the current folder and prints only what it prints itself (no library chatter)."""
     blocks = _doc_blocks()
     assert len(blocks) == 7  # a new example: add it to the range above
     monkeypatch.chdir(tmp_path)
     exec(compile(blocks[index], f"{DOCS.name}[block {index}]", "exec"), {"__name__": "__docs__"})  # noqa: S102
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    printed = capfd.readouterr().out.splitlines()
+    assert len(printed) == blocks[index].count("print("), printed

@@ -231,3 +231,182 @@ def test_paper_planner_decides_as_before(index: int) -> None:
     for i in range(0, roots.shape[0], 3):
         assert int(planner(roots[i].clone())["action"]) == int(case["actions"][i])
         torch.testing.assert_close(-planner.last.returns[0], case["costs"][i], rtol=COST_RTOL, atol=0.0)
+
+
+# ----- the env's own step: termination, params, a world model called as TensorDictModule calls it ---------------
+class _Line(nn.Module):  # x' = x + a - 1: action 0 steps left, 1 stays, 2 steps right
+    def forward(self, x: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return x + (action.unsqueeze(-1) - 1).to(x.dtype)
+
+    def walk(self, x: torch.Tensor, action: torch.Tensor, step: float = 1.0) -> torch.Tensor:
+        return x + step * (action.unsqueeze(-1) - 1).to(x.dtype)
+
+
+class _Position(nn.Module):  # reward: the new position
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x.clone()
+
+
+class WallEnv(ModelBasedEnvBase):
+    """A line world whose own ``_step`` ends the episode at the wall x >= 2 (the world model knows no wall)."""
+
+    def __init__(self, transition: TensorDictModule | None = None, dtype: torch.dtype = torch.float32,
+                 device: str | torch.device = "cpu") -> None:
+        transition = transition or TensorDictModule(_Line(), ["x", "action"], ["x"])
+        super().__init__(WorldModelWrapper(transition, TensorDictModule(_Position(), ["x"], ["reward"])),
+                         device=device)
+        self.observation_spec = Composite(x=Unbounded((1,), dtype=dtype))
+        self.action_spec = Categorical(3)
+        self.reward_spec = Unbounded((1,), dtype=dtype)
+
+    def _reset(self, tensordict=None, **kwargs):
+        return tensordict
+
+    def _step(self, tensordict):
+        out = super()._step(tensordict)
+        out.set("done", out["x"] >= 2)
+        out.set("terminated", out["x"] >= 2)
+        return out
+
+
+def _rollout_brute_force(env, roots: TensorDict, H: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every sequence played by ``env.rollout`` (stopping at done, as TorchRL's planners score), per root: the
+    first best sequence and its summed reward."""
+    seqs, rets = [], []
+    for b in range(roots.shape[0]):
+        best, best_ret = None, -float("inf")
+        for seq in itertools.product(range(3), repeat=H):
+            actions = [torch.tensor(a, device=roots.device) for a in seq]
+            played = env.rollout(H, auto_reset=False, tensordict=roots[b].clone(), actions=actions,
+                                 break_when_any_done=True)
+            ret = float(played["next", "reward"].sum())
+            if ret > best_ret + 1e-9:
+                best, best_ret = seq, ret
+        seqs.append(best)
+        rets.append(best_ret)
+    return torch.tensor(seqs), torch.tensor(rets, dtype=torch.float64)
+
+
+@pytest.mark.parametrize("H", [1, 2, 3, 4])
+def test_env_step_override_planned_as_rollout_brute_force(H: int) -> None:
+    """An env whose own ``_step`` ends the episode at x >= 2 (reward x): the planner scores it as ``env.rollout``
+    plays it. From x = 1 the best four steps are (1, 1, 1, 2), return 5 (not (2, 2, 2, 2), 14, as if the
+    episode never ended)."""
+    env = WallEnv()
+    roots = TensorDict({"x": torch.tensor([[1.0], [0.0], [-1.0]])}, [3])
+    seqs, rets = _rollout_brute_force(env, roots, H)
+    planner = DiscreteTreeSearchPlanner(env, H)
+    assert not planner.fast_path  # the env's step is not its world model alone
+    result = planner.search(roots.clone())
+    assert torch.equal(result.actions, seqs)
+    torch.testing.assert_close(result.returns.double(), rets)
+    if H == 4:
+        assert seqs[0].tolist() == [1, 1, 1, 2] and float(rets[0]) == 5.0
+
+
+def test_world_model_called_as_its_tensordict_module_calls_it() -> None:
+    """A stage with ``method=``/``method_kwargs=`` (or keyword in_keys) is run by the env as TensorDictModule runs
+    it, not as a bare ``module(*inputs)``."""
+    class Plain(WallEnv):  # TorchRL's own step: the world model alone
+        _step = ModelBasedEnvBase._step
+
+    walk = TensorDictModule(_Line(), ["x", "action"], ["x"], method="walk", method_kwargs={"step": 2.0})
+    keywords = TensorDictModule(_Line(), {"x": "x", "action": "action"}, ["x"])
+    roots = TensorDict({"x": torch.tensor([[0.0], [3.0]])}, [2])
+    for transition, expected in ((walk, [[2, 2], [2, 2]]), (keywords, [[2, 2], [2, 2]])):
+        env = Plain(transition)
+        planner = DiscreteTreeSearchPlanner(env, 2)
+        result = planner.search(roots.clone())
+        seqs, rets = _rollout_brute_force(env, roots, 2)
+        assert result.actions.tolist() == expected and torch.equal(result.actions, seqs)
+        torch.testing.assert_close(result.returns.double(), rets)
+    assert float(DiscreteTreeSearchPlanner(Plain(walk), 1).search(roots[:1].clone()).returns[0]) == 2.0  # step 2
+
+
+def test_fast_path_only_where_it_is_the_env_step() -> None:
+    """The plain-tensor path (a PlainWorldModel in an env whose step is its world model) gives the env.step
+    path's decisions, and is left for the env's step when the env has its own ``_step`` or world model params."""
+    from pernav.model import ImaginedEnv
+
+    class Stepped(ImaginedEnv):
+        def _step(self, tensordict):
+            return super()._step(tensordict)
+
+    torch.manual_seed(0)
+    model = DynamicsModel(state_dim=3, n_actions=3, K=2, hidden=(8,))
+    args = (lambda s, a, n: -n[..., 0].abs(), lambda n: n[..., 1] > 0.3)
+    fast, stepped = DiscreteTreeSearchPlanner(ImaginedEnv(model, *args), 3), DiscreteTreeSearchPlanner(
+        Stepped(model, *args), 3)
+    assert fast.fast_path and not stepped.fast_path
+    g = torch.Generator().manual_seed(1)
+    roots = TensorDict({"observation": torch.randn(4, 3, generator=g), "history": torch.randn(4, 2, 6, generator=g)},
+                       [4])
+    a, b = fast.search(roots.clone()), stepped.search(roots.clone())
+    assert torch.equal(a.actions, b.actions)
+    torch.testing.assert_close(a.returns, b.returns)
+    env = ImaginedEnv(model, *args)
+    env.world_model_params = TensorDict.from_module(env.world_model)
+    assert not DiscreteTreeSearchPlanner(env, 2).fast_path
+
+
+# ----- devices and dtypes: every tensor the search makes follows the roots -------------------------------------
+def _imagined_env(dtype: torch.dtype = torch.float32, device: str = "cpu"):
+    from pernav.model import ImaginedEnv
+
+    torch.manual_seed(0)
+    model = DynamicsModel(state_dim=3, n_actions=3, K=2, hidden=(8,)).to(device=device, dtype=dtype)
+    return ImaginedEnv(model, lambda s, a, n: -n[..., 0].abs(), lambda n: n[..., 1] > 0.3)
+
+
+def _imagined_roots(dtype: torch.dtype = torch.float32, device: str = "cpu") -> TensorDict:
+    g = torch.Generator().manual_seed(1)
+    return TensorDict({"observation": torch.randn(4, 3, generator=g).to(dtype),
+                       "history": torch.randn(4, 2, 6, generator=g).to(dtype),
+                       "mask": torch.rand(4, 3, generator=g) < 0.7}, [4], device=device)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("make", ["imagined", "wall"])
+def test_search_makes_its_tensors_on_the_roots_device(make: str, dtype: torch.dtype) -> None:
+    """With the default device elsewhere (``meta``), a search on CPU roots still runs on the CPU and decides as
+    before: no tensor is made without ``device=``. A float64 env is planned in float64."""
+    if make == "imagined":
+        env, roots, H = _imagined_env(dtype), _imagined_roots(dtype), 3
+        roots["mask"][:, 0] = True
+    else:
+        env, H = WallEnv(dtype=dtype), 3
+        roots = TensorDict({"x": torch.tensor([[1.0], [0.0]], dtype=dtype), "mask": torch.tensor(
+            [[True, True, True], [True, False, True]])}, [2])
+    planners = [DiscreteTreeSearchPlanner(env, H, mask_key=key) for key in (None, "mask")]
+    expected = [p.search(roots.clone()) for p in planners]
+    with torch.device("meta"):
+        found = [p.search(roots.clone()) for p in planners]
+        actions = planners[1](roots.clone())["action"]
+    for e, f in zip(expected, found, strict=True):
+        assert f.actions.device.type == "cpu" and torch.equal(f.actions, e.actions)
+        assert f.returns.dtype == dtype and torch.equal(f.returns, e.returns)
+    assert torch.equal(actions, expected[1].actions[:, 0])
+    if make == "wall":
+        seqs, rets = _rollout_brute_force(env, roots.exclude("mask"), H)
+        assert torch.equal(expected[0].actions, seqs)
+
+
+def test_allowed_follows_the_roots_device() -> None:
+    planner = DiscreteTreeSearchPlanner(WallEnv(device="meta"), 2)
+    roots = TensorDict({"x": torch.zeros(3, 1)}, [3]).to("meta")
+    assert planner.allowed(roots, 0).device.type == "meta"
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="no CUDA device here"))])
+def test_planner_equals_rollout_brute_force_on_the_env_device(device: str) -> None:
+    env = WallEnv(device=device)
+    roots = TensorDict({"x": torch.tensor([[1.0], [-1.0]])}, [2], device=device)
+    seqs, rets = _rollout_brute_force(env, roots, 3)
+    result = DiscreteTreeSearchPlanner(env, 3).search(roots.clone())
+    assert result.actions.device.type == device
+    assert torch.equal(result.actions.cpu(), seqs)
+    torch.testing.assert_close(result.returns.double().cpu(), rets)
+    imagined, start = _imagined_env(device=device), _imagined_roots(device=device)
+    planned = DiscreteTreeSearchPlanner(imagined, 2)(start.exclude("mask"))
+    assert planned["action"].device.type == device

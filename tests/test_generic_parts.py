@@ -192,3 +192,86 @@ def test_round_buffers_sample_long_trajectories_as_before(tmp_path):
         assert torch.equal(got["observation"], expected["observation"]) and torch.equal(got["traj"], expected["traj"])
     buffers.save(tmp_path / "rb")
     assert RoundBuffers.load(tmp_path / "rb").lengths == buffers.lengths
+
+
+def test_imagined_envs_never_move_the_callers_model():
+    """``ModelBasedEnvBase`` moves its world model in place: a model env on another device than its model is
+    refused (the caller's model and optimizer stay where they are); by default the env takes the model's device."""
+    from pernav.model import ImaginedEnv
+
+    model = DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,))
+    for make in (lambda m, **kw: ImaginedEnv(m, lambda s, a, n: n[..., 0], **kw),
+                 lambda m, **kw: ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))), **kw)):
+        with pytest.raises(ValueError, match=r"device='meta'\) would move the model \(on cpu\) in place"):
+            make(model, device="meta")
+    assert all(p.device.type == "cpu" for p in model.parameters())
+    on_meta = model.to("meta")
+    env = ImaginedEnv(on_meta, lambda s, a, n: n[..., 0])
+    assert env.device.type == "meta" and env.observation_spec["observation"].device.type == "meta"
+    assert ImaginedEnv(on_meta, lambda s, a, n: n[..., 0], device="meta").dynamics is on_meta
+    double = ImaginedEnv(DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,)).double(), lambda s, a, n: n[..., 0])
+    assert double.observation_spec["history"].dtype == torch.float64
+
+
+def test_dynamics_model_refuses_continuous_actions():
+    from torchrl.data import Bounded, OneHot
+
+    assert DynamicsModel(state_dim=3, n_actions=Categorical(4), K=1, hidden=(8,)).n_actions == 4
+    assert DynamicsModel(state_dim=3, n_actions=OneHot(5), K=1, hidden=(8,)).n_actions == 5
+    with pytest.raises(ValueError, match=r"discrete actions .* continuous action spec Bounded\w*\(shape=\(1,\)"):
+        DynamicsModel(state_dim=3, n_actions=Bounded(-2.0, 2.0, (1,)), K=1, hidden=(8,))
+    model = DynamicsModel(state_dim=3, n_actions=1, K=1, hidden=(8,))  # Pendulum's torque as "one action"
+    history = torch.zeros(2, 1, 4)
+    with pytest.raises(ValueError, match=r"floating-point action of shape \(2, 1\) that is not one-hot"):
+        model(history, torch.tensor([[-2.0], [2.0]]))
+    assert model(history, torch.tensor([[1.0], [1.0]])).shape == (2, 3)  # one-hot over one action
+    two = DynamicsModel(state_dim=3, n_actions=2, K=1, hidden=(8,))
+    assert torch.equal(two(torch.zeros(2, 1, 5), torch.tensor([[0.0, 1.0], [1.0, 0.0]])),
+                       two(torch.zeros(2, 1, 5), torch.tensor([1, 0])))
+
+
+def test_dynamics_model_float64_windows_need_a_float64_model():
+    model = DynamicsModel(state_dim=3, n_actions=2, K=2, hidden=(8,))
+    window, action = torch.randn(4, 2, 5, dtype=torch.float64), torch.tensor([0, 1, 1, 0])
+    with pytest.raises(TypeError, match=r"a torch.float64 window for a torch.float32 model; convert one to the other"):
+        model(window, action)
+    model.double()
+    model.fit_normalization(window, action, torch.randn(4, 3, dtype=torch.float64))
+    assert model(window, action).dtype == torch.float64
+
+
+def test_history_window_records_a_scalar_observation_as_one_column():
+    """FrozenLake's observation is a cell index (Categorical, shape ()): one column of the window."""
+    env = TransformedEnv(GymEnv("FrozenLake-v1", categorical_action_encoding=True), HistoryWindow(K=2))
+    check_env_specs(env, seed=0)
+    data = env.rollout(4)
+    assert data["history"].shape == (data.shape[0], 2, 1 + 4)
+    assert torch.equal(data["next", "history"][:, -1, 0], data["next", "observation"].float())
+    assert torch.equal(data["next", "history"][:, -2, 1:].argmax(-1), data["action"])
+
+
+def test_generic_packages_export_generic_parts_and_load_no_navigation():
+    """``pernav.planner`` loads neither the navigation's cost nor its layout; the navigation's parts live in
+    their own modules, and the old import paths still work."""
+    code = ("import sys, pernav.planner, pernav.transforms; "
+            "print(sorted({'pernav.world.cost', 'pernav.env.layout', 'pernav.planner.tree_search'} & set(sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout
+    import pernav.model
+    import pernav.planner
+    from pernav.model import navigation as model_navigation
+    from pernav.planner import navigation as planner_navigation
+
+    navigation = {"ImaginedNavigationEnv", "make_world_model", "ego_delta", "EgocentricDifferences", "TreeSearchPlanner",
+                  "RetimingPlanner", "build_planner"}
+    assert not navigation & {*pernav.model.__all__, *pernav.planner.__all__}
+    assert {"LossFn", "DynamicsModel", "ImaginedEnv", "PlainWorldModel"} <= set(pernav.model.__all__)
+    assert pernav.model.ImaginedNavigationEnv is model_navigation.ImaginedNavigationEnv  # the old paths
+    assert pernav.model.ego_delta is model_navigation.ego_delta
+    assert pernav.planner.TreeSearchPlanner is planner_navigation.TreeSearchPlanner
+    assert pernav.planner.build_planner is planner_navigation.build_planner
+    from pernav.model.dynamics import GX, EgocentricDifferences  # noqa: F401
+    from pernav.model.world_model import ImaginedNavigationEnv
+
+    assert ImaginedNavigationEnv is model_navigation.ImaginedNavigationEnv
+    assert "pernav.env" not in (pernav.transforms.HistoryWindow.__doc__ or "")  # its example needs no simulator

@@ -73,7 +73,7 @@ def _policy(job: PanelJob, env: Any) -> Any:
         return build_planner(TrueDynamicsEnv(env.base_env._env, samples=job.samples, seed=job.seed), options)
     if backend == "learned" and job.model is not None:
         from pernav.model.dynamics import DynamicsModel
-        from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+        from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 
         model = DynamicsModel(**job.model["config"])
         model.load_state_dict(job.model["state"])

@@ -1,25 +1,36 @@
-"""The adaptable world model: dynamics net (any state), L-step loss, one-shot adaptation U(P, tau), TorchRL model envs."""
+"""The adaptable world model: dynamics net (any state), L-step loss, one-shot adaptation U(P, tau), TorchRL model envs.
 
-from pernav.model.adapt import adapt, meta_parameters, trajectory_windows
-from pernav.model.dynamics import DELTAS, DynamicsModel, EgocentricDifferences, PlainDifferences, apply_delta, ego_delta
-from pernav.model.imagined import ImaginedEnv
+The navigation's own parts (``ImaginedNavigationEnv``, ``make_world_model``, ``EgocentricDifferences``,
+``ego_delta``) live in :mod:`pernav.model.navigation`; they still import from here, on first use.
+"""
+
+from pernav._lazy import lazy_exports
+from pernav.model.adapt import LossFn, adapt, meta_parameters, trajectory_windows
+from pernav.model.dynamics import DELTAS, DynamicsModel, PlainDifferences
+from pernav.model.imagined import ImaginedEnv, PlainWorldModel, model_device
 from pernav.model.losses import multistep_loss, single_step_loss, using
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 
 __all__ = [
     "DELTAS",
     "DynamicsModel",
-    "EgocentricDifferences",
     "ImaginedEnv",
-    "ImaginedNavigationEnv",
+    "LossFn",
     "PlainDifferences",
+    "PlainWorldModel",
     "adapt",
-    "apply_delta",
-    "ego_delta",
-    "make_world_model",
     "meta_parameters",
+    "model_device",
     "multistep_loss",
     "single_step_loss",
     "trajectory_windows",
     "using",
 ]
+
+_NAVIGATION = {name: "pernav.model.navigation"
+               for name in ("EgocentricDifferences", "ImaginedNavigationEnv", "apply_delta", "ego_delta",
+                            "make_world_model")}
+__getattr__ = lazy_exports(__name__, _NAVIGATION)[0]
+
+
+def __dir__() -> list[str]:
+    return sorted([*__all__, *_NAVIGATION])

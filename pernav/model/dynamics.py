@@ -3,8 +3,9 @@
 Input: the :class:`~pernav.transforms.HistoryWindow` of the last K (state, action) pairs, with the action
 about to be taken written into the newest row. Output: the next state. How the window is read and how a
 prediction becomes the next state is one swappable object (``delta``): for the navigation's 14-d state,
-:class:`EgocentricDifferences` (the window in the frame of the newest state: positions, velocities and goals
-relative to the car and rotated by its heading; the MLP predicts the next-state difference in that frame);
+:class:`~pernav.model.egocentric.EgocentricDifferences` (the window in the frame of the newest state: positions,
+velocities and goals relative to the car and rotated by its heading; the MLP predicts the next-state difference
+in that frame);
 for any other state, :class:`PlainDifferences` (the flat window; ``next_state - state``). Inputs and
 differences are normalized; the statistics are buffers of the module: saved, loaded and swapped with it.
 
@@ -26,133 +27,18 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDictBase
 from torch import nn
+from torchrl.data import Categorical, OneHot, TensorSpec
 from torchrl.modules import MLP
 
-from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
+from pernav._lazy import lazy_exports
+from pernav.model.egocentric import ROAD_MAX, STATE_DIM, EgocentricDifferences
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["DELTAS", "ROAD_MAX", "STATE_DIM", "DynamicsModel", "EgocentricDifferences", "PlainDifferences", "apply_delta",
-           "ego_delta", "road_of", "road_points", "wrap_angle"]
+__all__ = ["DELTAS", "DynamicsModel", "PlainDifferences"]
 
-STATE_DIM = 14
-X, Y, VX, VY, HEADING, GX, GY = 0, 1, 3, 4, 6, 9, 10
-PAIRS = ((X, Y), (VX, VY), (GX, GY))  # planar vectors rotated into the car's frame
-ROAD_STRIDE = 2  # route points (ROUTE_SPACING = 3 m apart) from one road point to the next: 6 m
-ROAD_MAX = 16  # road points stored with the data (90 m ahead); a model reads the first ``road`` of them
-HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in the env's ``route_ahead``
-
-
-def road_points(route: torch.Tensor, n: int = ROAD_MAX, index: torch.Tensor | None = None) -> torch.Tensor:
-    """``[..., n, 2]``: ``n`` points of the planned route every ``ROAD_STRIDE * ROUTE_SPACING`` m from the car's
-    projection on it, the road a :class:`DynamicsModel` with ``road=n`` reads. ``route`` is the env's
-    ``route_ahead`` (``[..., P, 2]``, the car's projection at point ``HERE``) or, with ``index`` (``[...]``, the
-    projection of each imagined car), one route ``[P, 2]`` shared by a batch. Points past the route's end repeat it.
-
-    >>> route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # straight, car at x = 0
-    >>> road_points(route, 3)[:, 0].tolist()
-    [0.0, 6.0, 12.0]
-    >>> road_points(route, 2, index=torch.tensor([5, 94]))[:, :, 0].tolist()
-    [[0.0, 6.0], [267.0, 270.0]]
-    """
-    P = route.shape[-2]
-    if index is None:
-        return route[..., (HERE + ROAD_STRIDE * torch.arange(n)).clamp(max=P - 1), :]
-    if route.ndim != 2:
-        raise ValueError(f"road_points with an index needs one route [P, 2], got {tuple(route.shape)}")
-    return route[(index.unsqueeze(-1) + ROAD_STRIDE * torch.arange(n)).clamp(max=P - 1)]
-
-
-def wrap_angle(a: torch.Tensor) -> torch.Tensor:
-    """Angle in [-pi, pi)."""
-    return torch.remainder(a + torch.pi, 2 * torch.pi) - torch.pi
-
-
-def road_of(data: TensorDictBase) -> torch.Tensor | None:
-    """The road points of transitions: stored ``"road"``, else :func:`road_points` of the env's
-    ``"route_ahead"`` (a raw drive), else ``None`` (data without a route, for models that do not read it)."""
-    if "road" in data.keys():
-        return data["road"]
-    return road_points(data["route_ahead"]) if "route_ahead" in data.keys() else None
-
-
-def _rotate(points: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """Planar vectors ``[..., n, 2]`` rotated by ``angle`` ``[...]``."""
-    c, s = torch.cos(angle)[..., None, None], torch.sin(angle)[..., None, None]
-    px, py = points[..., 0:1], points[..., 1:2]
-    return torch.cat([c * px - s * py, s * px + c * py], dim=-1)
-
-
-def _rotate_pairs(state: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """``[..., 3, 2]``: the (x, y), (vx, vy) and (goal_x, goal_y) pairs of ``state`` rotated by ``angle``."""
-    return _rotate(torch.stack([state[..., X:Y + 1], state[..., VX:VY + 1], state[..., GX:GY + 1]], dim=-2), angle)
-
-
-def _assemble(pairs: torch.Tensor, state: torch.Tensor, heading: torch.Tensor) -> torch.Tensor:
-    """A 14-vector from rotated pairs ``[..., 3, 2]``, the other entries of ``state`` and a heading entry."""
-    return torch.cat([pairs[..., 0, :], state[..., 2:3], pairs[..., 1, :], state[..., 5:6], heading.unsqueeze(-1),
-                      state[..., 7:9], pairs[..., 2, :], state[..., 11:]], dim=-1)
-
-
-def ego_delta(state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
-    """``next_state - state`` with position, velocity and goal changes rotated into ``state``'s frame.
-
-    >>> s = torch.zeros(14); s[6] = torch.pi / 2           # heading +90°
-    >>> n = s.clone(); n[1] = 2.0                            # moved 2 m along +y (straight ahead)
-    >>> torch.allclose(ego_delta(s, n)[:2], torch.tensor([2.0, 0.0]), atol=1e-6)
-    True
-    """
-    d = next_state - state
-    return _assemble(_rotate_pairs(d, -state[..., HEADING]), d, wrap_angle(d[..., HEADING]))
-
-
-def apply_delta(state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-    """Inverse of :func:`ego_delta`: the next state from ``state`` and an egocentric difference."""
-    world = _assemble(_rotate_pairs(delta, state[..., HEADING]), delta, delta[..., HEADING])
-    return state + world
-
-
-class EgocentricDifferences:
-    """How the navigation model reads a window and predicts: the 14-d navigation state in the car's frame.
-
-    Features: per row, position, velocity and goal relative to the newest state's position and rotated by
-    its heading, sin/cos of the heading difference, the other state entries and the action; then the road
-    points (if any) in the same frame. The prediction is the next state's :func:`ego_delta`.
-
-    >>> layout = EgocentricDifferences()
-    >>> layout.feature_size(K=5, state_dim=14, n_actions=7, road=0)
-    110
-    """
-
-    name = "egocentric"
-
-    def check(self, state_dim: int, road: int) -> None:
-        if state_dim != STATE_DIM:
-            raise ValueError(f"delta='egocentric' reads the {STATE_DIM}-d navigation state, got state_dim={state_dim}; "
-                             "use delta='plain' for another state")
-
-    def feature_size(self, K: int, state_dim: int, n_actions: int, road: int) -> int:
-        return K * (state_dim + 1 + n_actions) + 2 * road
-
-    def features(self, states: torch.Tensor, actions: torch.Tensor, road: torch.Tensor | None) -> torch.Tensor:
-        now = states[..., -1:, :]
-        theta = now[..., HEADING]
-        S = states.shape[-1]
-        origin = torch.cat([now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], GX - Y - 1),
-                            now[..., X:Y + 1], now.new_zeros(*now.shape[:-1], S - GY - 1)], dim=-1)
-        pairs = _rotate_pairs(states - origin, -theta)  # vx, vy are not shifted: the origin is 0 there
-        dtheta = states[..., HEADING] - theta
-        feats = torch.cat([pairs.flatten(-2), states[..., 2:3], states[..., 5:6], torch.sin(dtheta).unsqueeze(-1),
-                           torch.cos(dtheta).unsqueeze(-1), states[..., 7:9], states[..., 11:], actions], dim=-1)
-        if road is None:
-            return feats.flatten(-2)
-        ahead = _rotate(road - now[..., X:Y + 1], -theta[..., 0])
-        return torch.cat([feats.flatten(-2), ahead.flatten(-2)], dim=-1)  # ahead has the window's batch (via now)
-
-    def difference(self, state: torch.Tensor, next_state: torch.Tensor) -> torch.Tensor:
-        return ego_delta(state, next_state)
-
-    def apply(self, state: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
-        return apply_delta(state, delta)
+# the navigation's layout moved to pernav.model.egocentric; its names stay importable from here
+__getattr__ = lazy_exports(__name__, {name: "pernav.model.egocentric" for name in (
+    "GX", "GY", "HEADING", "VX", "VY", "X", "Y", "apply_delta", "ego_delta", "road_of", "road_points", "wrap_angle")})[0]
 
 
 class PlainDifferences:
@@ -188,6 +74,25 @@ class PlainDifferences:
 DELTAS = {"egocentric": EgocentricDifferences, "plain": PlainDifferences}
 
 
+def _discrete_actions(n_actions: int | TensorSpec) -> int:
+    """The number of actions of an int or a discrete action spec; ``ValueError`` for a continuous spec."""
+    if not isinstance(n_actions, TensorSpec):
+        return int(n_actions)
+    if isinstance(n_actions, (Categorical, OneHot)):
+        return int(n_actions.space.n)
+    raise ValueError(f"DynamicsModel models discrete actions (n_actions: an int, a Categorical or a OneHot spec); "
+                     f"got the continuous action spec {type(n_actions).__name__}(shape={tuple(n_actions.shape)}, "
+                     f"dtype={n_actions.dtype}): its actions would be one-hot encoded and lost")
+
+
+def _check_one_hot(action: torch.Tensor, n_actions: int) -> None:
+    """``ValueError`` unless a floating-point ``action`` is one-hot over ``n_actions`` (a continuous action is not)."""
+    if action.shape[-1:] != (n_actions,) or not bool(((action == 0) | (action == 1)).all() and (action.sum(-1) == 1).all()):
+        raise ValueError(f"DynamicsModel takes discrete actions (integers [...] or one-hot [..., {n_actions}]); got a "
+                         f"floating-point action of shape {tuple(action.shape)} that is not one-hot: a continuous "
+                         "action would be one-hot encoded and lost")
+
+
 def _safe_std(x: torch.Tensor) -> torch.Tensor:
     """Per-column std; a column constant in the data (e.g. no roundabout in this town) gets 1, not a tiny
     value that would blow up when the column varies later."""
@@ -200,7 +105,8 @@ class DynamicsModel(nn.Module):
 
     Args:
         state_dim: state size (14, the paper's state; any size with ``delta="plain"``).
-        n_actions: 7, or 21 with playback speed (any number of discrete actions).
+        n_actions: 7, or 21 with playback speed (any number of discrete actions), or the env's action spec
+            (``Categorical`` or ``OneHot``; a continuous spec is refused: the model one-hot encodes its actions).
         K: history length (rows of the window).
         hidden: hidden layer widths ([256, 256, 256] in the paper).
         road: points of the planned route ahead it also reads (:func:`road_points`, 6 m apart, at most
@@ -224,10 +130,11 @@ class DynamicsModel(nn.Module):
     torch.Size([3, 5, 21])
     """
 
-    def __init__(self, state_dim: int = STATE_DIM, n_actions: int = 7, K: int = 5,
+    def __init__(self, state_dim: int = STATE_DIM, n_actions: int | TensorSpec = 7, K: int = 5,
                  hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0,
                  delta: str | EgocentricDifferences | PlainDifferences = "auto") -> None:
         super().__init__()
+        n_actions = _discrete_actions(n_actions)
         if int(state_dim) < 1 or int(n_actions) < 1:
             raise ValueError(f"state_dim and n_actions must be >= 1, got {state_dim} and {n_actions}")
         if isinstance(delta, str):
@@ -259,6 +166,8 @@ class DynamicsModel(nn.Module):
     # ----- window <-> features -------------------------------------------------------------------
     def with_action(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The window with ``action`` (categorical ``[...]`` or one-hot) in its newest row."""
+        if action.is_floating_point():  # a one-hot action, or a continuous one the one-hot code would drop
+            _check_one_hot(action, self.n_actions)
         one_hot = self.window._one_hot(action, history.ndim - 2).to(history.dtype)
         newest = torch.cat([history[..., -1, : self.state_dim], one_hot], dim=-1).unsqueeze(-2)
         return torch.cat([history[..., :-1, :], newest], dim=-2)
@@ -266,6 +175,9 @@ class DynamicsModel(nn.Module):
     def features(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """Flat features of a window with its action, ``[..., n_features]``, as the model's ``delta`` object
         reads it (:class:`EgocentricDifferences`, :class:`PlainDifferences`)."""
+        if window.dtype != self.in_mean.dtype:
+            raise TypeError(f"DynamicsModel: a {window.dtype} window for a {self.in_mean.dtype} model; convert one "
+                            f"to the other (model.to({window.dtype}), or the data)")
         if self.road and (road is None or road.shape[-2] < self.road):
             raise ValueError(f"this model reads {self.road} road points ahead: pass road [..., >= {self.road}, 2] "
                              f"(road_points of the route), got {None if road is None else tuple(road.shape)}")

@@ -6,7 +6,7 @@ The transition reads ``"history"`` (the :class:`~pernav.transforms.HistoryWindow
 (never, without one). So a planner (:class:`~pernav.planner.DiscreteTreeSearchPlanner`) or ``env.rollout``
 imagines with the learned model and scores with the task's known reward, as in model-based RL (PETS, GrBAL);
 adapted parameters are swapped in with ``with params.to_module(model): ...``. The navigation's own model env,
-with its tracking reward and route-aware imagination, is :class:`~pernav.model.world_model.ImaginedNavigationEnv`.
+with its tracking reward and route-aware imagination, is :class:`~pernav.model.navigation.ImaginedNavigationEnv`.
 
 Example:
     >>> import torch
@@ -21,11 +21,12 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
+from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import ModelBasedEnvBase
@@ -33,10 +34,62 @@ from torchrl.modules import WorldModelWrapper
 
 from pernav.model.dynamics import DynamicsModel
 
-__all__ = ["ImaginedEnv"]
+__all__ = ["ImaginedEnv", "PlainWorldModel", "model_device"]
 
 RewardFn = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 TerminationFn = Callable[[torch.Tensor], torch.Tensor]
+
+
+Stage = tuple[nn.Module, Sequence[NestedKey], Sequence[NestedKey]]
+
+
+class PlainWorldModel(WorldModelWrapper):
+    """TorchRL's ``WorldModelWrapper(transition, reward)`` of two plain modules, also steppable without a TensorDict.
+
+    ``transition`` and ``reward`` are ``(module, in_keys, out_keys)``: the module takes its in_keys' tensors as
+    positional arguments and returns its out_keys' tensors (one, or a tuple in that order), exactly as
+    ``TensorDictModule(module, in_keys, out_keys)`` calls it. :meth:`tensor_step` runs the same modules on a
+    dict of tensors: what :class:`~pernav.planner.DiscreteTreeSearchPlanner` calls in an env whose step is its
+    world model alone (no TensorDict per call: a third of a decision's time at the navigation's size).
+
+    >>> wm = PlainWorldModel((nn.Identity(), ["x"], ["y"]), (nn.Identity(), ["y"], ["reward"]))
+    >>> wm.tensor_step({"x": torch.ones(2)})["reward"].tolist()
+    [1.0, 1.0]
+    """
+
+    def __init__(self, transition: Stage, reward: Stage) -> None:
+        stages = [TensorDictModule(module, in_keys=list(in_keys), out_keys=list(out_keys))
+                  for module, in_keys, out_keys in (transition, reward)]
+        super().__init__(*stages)
+        self._plain = tuple((list(s.in_keys), list(s.out_keys), s.module) for s in stages)
+
+    def tensor_step(self, data: dict) -> dict:
+        """``data`` (``{key: tensor}``: the state entries and the action) updated with both stages' outputs, as
+        calling the module on a TensorDict of ``data`` would."""
+        data = dict(data)
+        for in_keys, out_keys, module in self._plain:
+            out = module(*(data[k] for k in in_keys))
+            data.update(zip(out_keys, out if isinstance(out, tuple) else (out,), strict=True))
+        return data
+
+
+def model_device(model: nn.Module, device: str | torch.device | None = None, owner: str = "ImaginedEnv") -> torch.device:
+    """The device of a model env around ``model``: the model's own (``device=None``), or ``device`` where the model
+    already lives. A model elsewhere is refused, not moved: ``ModelBasedEnvBase`` moves its world model in place,
+    which would move the caller's model (and the optimizer's parameters) under them.
+
+    >>> model_device(nn.Linear(2, 2)).type
+    'cpu'
+    """
+    tensors = [*model.parameters(), *model.buffers()]
+    here = tensors[0].device if tensors else torch.device("cpu")
+    if device is None:
+        return here
+    device = torch.device(device)
+    if device.type != here.type or (device.index is not None and here.index is not None and device.index != here.index):
+        raise ValueError(f"{owner}(device={str(device)!r}) would move the model (on {here}) in place; move it "
+                         f"yourself first (model.to({str(device)!r})), or leave device=None to use the model's device")
+    return here
 
 
 class _Imagine(nn.Module):
@@ -65,25 +118,28 @@ class ImaginedEnv(ModelBasedEnvBase):
         model: the dynamics model (any ``state_dim``, ``n_actions``).
         reward_fn: ``(state [..., S], action [...] (categorical), next_state [..., S]) -> reward [...]``.
         termination_fn: ``next_state -> bool [...]`` (an imagined failure ends the rollout's reward), or ``None``.
+        device: the env's device: the model's (``None``), or the device the model already lives on (a model
+            elsewhere is refused, not moved in place: :func:`model_device`).
 
     Reset needs a starting point (``"observation"`` and ``"history"``, e.g. a real env's current tensordict);
     without one it starts from the zero state.
     """
 
     def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
-                 device: str | torch.device = "cpu") -> None:
-        transition = TensorDictModule(_Imagine(model, reward_fn, termination_fn),
-                                      in_keys=["observation", "history", "action"],
-                                      out_keys=["observation", "history", "reward", "done", "terminated"])
-        keep = TensorDictModule(nn.Identity(), in_keys=["reward"], out_keys=["reward"])  # computed with the step
-        super().__init__(WorldModelWrapper(transition, keep), device=device)
+                 device: str | torch.device | None = None) -> None:
+        device = model_device(model, device, type(self).__name__)
+        transition = (_Imagine(model, reward_fn, termination_fn), ["observation", "history", "action"],
+                      ["observation", "history", "reward", "done", "terminated"])
+        keep = (nn.Identity(), ["reward"], ["reward"])  # the reward is computed with the step
+        super().__init__(PlainWorldModel(transition, keep), device=device)
         self.dynamics = model
-        obs = Composite(observation=Unbounded((model.state_dim,)),
-                        history=Unbounded((model.K, model.state_dim + model.n_actions)))
+        dtype = model.out_mean.dtype  # a float64 model imagines float64 states
+        obs = Composite(observation=Unbounded((model.state_dim,), dtype=dtype),
+                        history=Unbounded((model.K, model.state_dim + model.n_actions), dtype=dtype))
         self.observation_spec = obs
         self.state_spec = obs.clone()
         self.action_spec = Categorical(model.n_actions)
-        self.reward_spec = Unbounded((1,))
+        self.reward_spec = Unbounded((1,), dtype=dtype)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         given = tensordict is not None and {"history", "observation"} <= set(tensordict.keys())

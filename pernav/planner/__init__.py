@@ -1,10 +1,20 @@
-"""Discrete tree-search MPC: a generic planner for any discrete-action model env, the paper's short-horizon
-navigation planner (a configuration of it) and the long-horizon re-timing planner."""
+"""Discrete tree-search MPC for any discrete-action model env (:class:`DiscreteTreeSearchPlanner`).
 
+The navigation's planners (the paper's ``TreeSearchPlanner``, the default ``RetimingPlanner``, ``build_planner``)
+live in :mod:`pernav.planner.navigation`; they still import from here, on first use, so importing this package
+loads none of the navigation (its cost, its layout).
+"""
+
+from pernav._lazy import lazy_exports
 from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult
-from pernav.planner.factory import PLANNER_DEFAULTS, PLANNER_KINDS, build_planner
-from pernav.planner.retiming import RetimedExplore, RetimingPlanner, RetimingResult, candidate_plans
-from pernav.planner.tree_search import TreeSearchPlanner
 
-__all__ = ["PLANNER_DEFAULTS", "PLANNER_KINDS", "DiscreteTreeSearchPlanner", "RetimedExplore", "RetimingPlanner",
-           "RetimingResult", "SearchResult", "TreeSearchPlanner", "build_planner", "candidate_plans"]
+__all__ = ["DiscreteTreeSearchPlanner", "SearchResult"]
+
+_NAVIGATION = {name: "pernav.planner.navigation"
+               for name in ("PLANNER_DEFAULTS", "PLANNER_KINDS", "RetimedExplore", "RetimingPlanner", "RetimingResult",
+                            "TreeSearchPlanner", "build_planner", "candidate_plans")}
+__getattr__ = lazy_exports(__name__, _NAVIGATION)[0]
+
+
+def __dir__() -> list[str]:
+    return sorted([*__all__, *_NAVIGATION])

@@ -9,8 +9,11 @@ first ``done`` are ignored, as in TorchRL's planners), plus an optional terminal
 the first action of the best sequence (receding horizon).
 
 Any env whose action spec is ``Categorical`` or ``OneHot`` and that steps batches of any size: a
-``ModelBasedEnvBase`` (a learned model, stepped through its ``world_model`` without ``env.step``'s
-bookkeeping) or any stateless ``EnvBase``. An action mask (``mask_key``: ``[..., A]`` for every level, or
+``ModelBasedEnvBase`` (a learned model) or any stateless ``EnvBase``. Nodes are stepped with ``env.step``, so a
+sequence scores exactly as ``env.rollout`` would play it (the env's own ``_step``, reward, done and
+``world_model_params``); a plain world model (:class:`~pernav.model.PlainWorldModel`) in an env whose step is
+its world model alone is stepped on plain tensors instead, the same computation without TensorDicts
+(:attr:`DiscreteTreeSearchPlanner.fast_path`). An action mask (``mask_key``: ``[..., A]`` for every level, or
 ``[..., H, A]`` one per level) prunes forbidden actions from the tree. The input tensordict may have any
 batch shape; each root is searched on its own, all in the same batched env calls.
 
@@ -50,7 +53,7 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torchrl.data import Categorical, Composite, OneHot
 from torchrl.envs import ModelBasedEnvBase
@@ -72,6 +75,11 @@ class SearchResult:
 
 def _key(key: NestedKey) -> tuple[str, ...]:
     return (key,) if isinstance(key, str) else tuple(key)
+
+
+def _device(roots: TensorDictBase, keys: list) -> torch.device:
+    """Where the roots' state lives (a TensorDict without a device of its own: its first state entry's)."""
+    return roots.device if roots.device is not None else roots.get(keys[0]).device
 
 
 class DiscreteTreeSearchPlanner(MPCPlannerBase):
@@ -134,7 +142,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """``[B, A]`` booleans: the actions each root's tree may take at ``level`` (from ``mask_key``; ``mask``:
         that entry already read, as :meth:`search` does once per search)."""
         if self.mask_key is None:
-            return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool)
+            return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool, device=_device(roots, self.state_keys))
         mask = roots.get(self.mask_key).bool() if mask is None else mask
         return mask[:, level] if mask.ndim == 3 else mask
 
@@ -157,36 +165,29 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         key = self.reward_key[1:] if self.reward_key[0] == "next" and len(self.reward_key) > 1 else self.reward_key
         return key[0] if len(key) == 1 else key
 
-    def _program(self) -> list | None:
-        """The world model as (in_keys, out_keys, module) steps run on plain tensors: the TensorDictModules of a
-        ``ModelBasedEnvBase``'s world model called without a TensorDict per call (a third of a decision's time
-        at the navigation's size). ``None`` where the env is not built that way (then ``env.step``)."""
-        if not self.model_based:
-            return None
-        modules = list(self.env.world_model.module) if hasattr(self.env.world_model, "module") \
-            and isinstance(self.env.world_model.module, torch.nn.ModuleList) else [self.env.world_model]
-        if not all(isinstance(m, TensorDictModule) and not m._kwargs for m in modules):
-            return None
-        return [(list(m.in_keys), list(m.out_keys), m.module) for m in modules]
+    @property
+    def fast_path(self) -> bool:
+        """Whether a level is stepped by the world model's ``tensor_step`` on plain tensors (no TensorDict per
+        call: a third of a decision's time at the navigation's size). Only where that is provably the env's
+        step: a ``ModelBasedEnvBase`` whose ``_step`` is TorchRL's own (the world model and nothing else), with
+        no ``world_model_params``/``world_model_buffers``, and a world model that offers ``tensor_step``
+        (:class:`~pernav.model.PlainWorldModel`). Elsewhere the env's own ``step``."""
+        env = self.env
+        return (self.model_based and type(env)._step is ModelBasedEnvBase._step
+                and env.world_model_params is None and env.world_model_buffers is None
+                and callable(getattr(env.world_model, "tensor_step", None)))
 
     def _step(self, nodes: dict, actions: torch.Tensor) -> dict:
         """The children of flat nodes (``{key: [M, ...]}``) after ``actions`` ``[M]``: every entry the env's step
-        writes (next state, reward, done)."""
+        writes (next state, reward, done), as ``env.step`` computes them (its ``_step``, reward and done)."""
         data = dict(nodes)
         data[self.action_key] = torch.nn.functional.one_hot(actions, self.n_actions) if self.one_hot else actions
-        if not hasattr(self, "_program_cache"):  # the env's world model does not change: inspect it once
-            self._program_cache = self._program()
-        program = self._program_cache
-        if program is not None:
-            for in_keys, out_keys, module in program:
-                out = module(*(data[k] for k in in_keys))
-                data.update(zip(out_keys, out if isinstance(out, tuple) else (out,), strict=True))
-            return data
-        td = TensorDict(batch_size=[actions.shape[0]])
+        if self.fast_path:
+            return self.env.world_model.tensor_step(data)
+        td = TensorDict(batch_size=[actions.shape[0]], device=actions.device)
         for key, value in data.items():
             td.set(key, value)
-        step = self.env.step(td) if not self.model_based else self.env.world_model(td)
-        out = step.get("next") if not self.model_based else step
+        out = self.env.step(td).get("next")
         return {key: out.get(key) for key in out.keys(True, True)}
 
     @staticmethod
@@ -203,12 +204,13 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         H = self.levels(roots)
         mask = None if self.mask_key is None else roots.get(self.mask_key).bool()  # once per search, not per level
         nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
+        device = _device(roots, self.state_keys)  # every tensor made here lives with the roots' state
         parent_count = 1
-        seqs = torch.zeros(B, 1, 0, dtype=torch.long)
-        ret = torch.zeros(B, 1)
+        seqs = torch.zeros(B, 1, 0, dtype=torch.long, device=device)
+        ret = torch.zeros(B, 1, device=device)  # promoted to the reward's dtype (float64 stays float64)
         alive = None  # [B, N] not done yet (later rewards count); None: no node done so far
-        valid = torch.ones(B, 1, dtype=torch.bool)  # a real node (not padding of a root with fewer nodes)
-        rows = torch.arange(B).unsqueeze(-1)
+        valid = torch.ones(B, 1, dtype=torch.bool, device=device)  # a real node (not padding of a root with fewer nodes)
+        rows = torch.arange(B, device=device).unsqueeze(-1)
         evaluations = 0
         for level in range(H):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
@@ -219,7 +221,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
                     self._refuse_unplannable(level_allowed, level)
                 keep = None
                 k = parent_count * actions.numel()
-                index = torch.arange(parent_count).repeat_interleave(actions.numel())
+                index = torch.arange(parent_count, device=device).repeat_interleave(actions.numel())
                 parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
             else:
                 if not bool(level_allowed.any(-1).all()):
@@ -247,7 +249,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             seqs = torch.cat([seqs.reshape(B * seqs.shape[1], level)[index].reshape(B, k, level), action.unsqueeze(-1)], -1)
             nodes = {key: out[key] for key in self.state_keys}  # flat [B * k, ...]
             parent_count = k
-            valid = keep if keep is not None else torch.ones(B, k, dtype=torch.bool)
+            valid = keep if keep is not None else torch.ones(B, k, dtype=torch.bool, device=device)
             if keep is not None:
                 ret = torch.where(valid, ret, torch.full_like(ret, float("-inf")))
             if self.beam_width is not None and k > self.beam_width and level + 1 < H:
@@ -272,7 +274,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             self.nonfinite += 1
             log.warning("DiscreteTreeSearchPlanner: %d non-finite sequence returns", int((~finite).sum()))
         best = torch.nan_to_num(ret, nan=float("-inf")).argmax(-1)  # the first best: ties go to the lower sequence
-        return SearchResult(seqs[torch.arange(B), best], ret[torch.arange(B), best], evaluations)
+        return SearchResult(seqs[rows[:, 0], best], ret[rows[:, 0], best], evaluations)
 
     def _refuse_unplannable(self, allowed: torch.Tensor, level: int) -> None:
         """Raise for roots whose ``allowed`` ``[B, A]`` row is all false: no sequence exists there, and the search

@@ -2,7 +2,7 @@
 
 Example:
     >>> from pernav.model import DynamicsModel
-    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     >>> env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
     >>> type(build_planner(env, {"kind": "paper", "horizon": 5})).__name__
     'TreeSearchPlanner'

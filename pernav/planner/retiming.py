@@ -13,7 +13,7 @@ residual of explore, as the paper intends), over a horizon long enough to see th
 * with 21 actions, each of these at the three playback speeds.
 
 Each candidate is imagined from the current state by the env's ``imagine`` (a learned
-:class:`~pernav.model.world_model.ImaginedNavigationEnv`, one row per ensemble member, or the true simulator,
+:class:`~pernav.model.navigation.ImaginedNavigationEnv`, one row per ensemble member, or the true simulator,
 :class:`~pernav.diagnostics.TrueDynamicsEnv`, one row per re-seeded sample) and scored by
 
     sum_h tracking_cost(pos_h, goal_{h-1})  +  route_weight * sum_h dist(pos_h, planned route)^2
@@ -37,7 +37,7 @@ Example:
     >>> import torch
     >>> from tensordict import TensorDict
     >>> from pernav.model import DynamicsModel
-    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     >>> planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,)))), horizon=4)
     >>> td = TensorDict({"history": torch.zeros(5, 21), "explore_future": torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]),
     ...                  "route_ahead": torch.zeros(10, 2), "action_mask": torch.ones(5, 7, dtype=torch.bool)}, [])
@@ -130,7 +130,7 @@ class RetimingPlanner(MPCPlannerBase):
             still applies); ``None`` (default): no waiver. The rows disagree on how far a missed exit takes the
             car, not on whether it is missed.
         route_goals: imagine each state's goal from the known route (as the env sets it) rather than the
-            model's guess (:meth:`~pernav.model.world_model.ImaginedNavigationEnv.imagine`; learned models only).
+            model's guess (:meth:`~pernav.model.navigation.ImaginedNavigationEnv.imagine`; learned models only).
         rescue_evidence: in a study, allow rescues in a round only where :meth:`alarm_check` on the round's
             tau (this driver's own explore drive) finds the rows' alarm raised where the real car left the
             route and nowhere else (the study runner applies it; the planner alone ignores it).
@@ -207,7 +207,7 @@ class RetimingPlanner(MPCPlannerBase):
         >>> import torch
         >>> from tensordict import TensorDict
         >>> from pernav.model import DynamicsModel
-        >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+        >>> from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
         >>> planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,)))), horizon=3)
         >>> drive = TensorDict({"history": torch.zeros(6, 5, 21), "route_ahead": torch.zeros(6, 10, 2),
         ...                     "action": torch.zeros(6, dtype=torch.long),

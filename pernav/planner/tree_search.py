@@ -6,7 +6,7 @@ The return of an action sequence ``a_1..a_H`` is the navigation model env's own 
     sum_h -|| pos(s_hat_{h+1}) - g_{h+1} ||^2  +  bonus * [a matches the explore plan shifted by k, |k| <= S]
                                                -  penalty * #(turn/roundabout prompts the mask forbids)
 
-where ``s_hat`` is imagined by the world model (:class:`~pernav.model.world_model.ImaginedNavigationEnv`, whose
+where ``s_hat`` is imagined by the world model (:class:`~pernav.model.navigation.ImaginedNavigationEnv`, whose
 reward is minus the env's :func:`~pernav.world.cost.tracking_cost`), ``g`` are the goal waypoints. The search is
 the generic one: exhaustive, level by level (shared prefixes computed once), or with a beam (``beam=W``, for the
 21-action space). With ``mask=True`` (default) the actions the situation forbids are not expanded at all; with
@@ -20,7 +20,7 @@ Example:
     >>> import torch
     >>> from tensordict import TensorDict
     >>> from pernav.model import DynamicsModel
-    >>> from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    >>> from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     >>> env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,))))
     >>> planner = TreeSearchPlanner(env, horizon=3, shift=1)
     >>> td = TensorDict({"observation": torch.zeros(14), "history": torch.zeros(5, 21),
@@ -52,7 +52,7 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
     """The paper's planner: the generic tree search with the explore bonus and the turn penalty as reward terms.
 
     Args:
-        env: an :class:`~pernav.model.world_model.ImaginedNavigationEnv` (its world model is the dynamics), or an
+        env: an :class:`~pernav.model.navigation.ImaginedNavigationEnv` (its world model is the dynamics), or an
             env with ``imagine`` only (the true simulator, :class:`~pernav.diagnostics.TrueDynamicsEnv`).
         horizon: H, the number of imagined steps (5 in the paper).
         shift: S, the time shifts of the explore plan that earn the bonus (``explore_plan`` has H + 2S entries).
@@ -114,14 +114,15 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
         shifted = roots["explore_plan"].long()[:, : H + 2 * self.shift].unfold(-1, H, 1)  # [B, 2S + 1, H]
         instruction = sequences.div(self.playbacks, rounding_mode="floor")
         match = (instruction.unsqueeze(2) == shifted.unsqueeze(1)).all(-1)  # [B, N, 2S + 1]
-        k = torch.arange(shifted.shape[1], dtype=torch.get_default_dtype()) - (shifted.shape[1] - 1) / 2
+        k = torch.arange(shifted.shape[1], dtype=torch.get_default_dtype(), device=sequences.device) \
+            - (shifted.shape[1] - 1) / 2
         weight = 1.0 - self.shift_decay * k.abs()  # a shift must buy its cost: explore itself wins ties
         return self.bonus * (match.to(weight.dtype) * weight).amax(-1)
 
     def _penalties(self, actions: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """``penalty`` for each turn/roundabout prompt in ``actions`` ``[B, N]`` that ``mask`` ``[B, A]`` forbids."""
         instruction = actions.div(self.playbacks, rounding_mode="floor")
-        is_prompt = torch.isin(instruction, torch.tensor(TURN_INSTRUCTIONS))
+        is_prompt = torch.isin(instruction, torch.tensor(TURN_INSTRUCTIONS, device=instruction.device))
         return self.penalty * (is_prompt & ~mask.gather(-1, actions)).to(torch.get_default_dtype())
 
     def _explore(self, roots: TensorDictBase, H: int) -> torch.Tensor:

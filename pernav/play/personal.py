@@ -4,7 +4,7 @@
 adapts every member to a person on their drive tau exactly as the study adapts to a round's user at test time (``U``:
 one gradient step of ``alpha`` on tau's L-step loss, backtracked and clipped as the study's ``TrainConfig`` says; or
 ``personal_updates`` maximum-likelihood updates where the study used them) and returns the study's own planner (its
-``planner`` options, ``retime`` by default) on :class:`~pernav.model.world_model.ImaginedNavigationEnv` planning with
+``planner`` options, ``retime`` by default) on :class:`~pernav.model.navigation.ImaginedNavigationEnv` planning with
 those parameters: a :class:`StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession` policy, that also
 carries the env settings the study planned on (history ``K``, planning context lengths), which the session takes.
 
@@ -49,7 +49,7 @@ from tensordict import TensorDictBase
 
 from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlayResult, PlaySession

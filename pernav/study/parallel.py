@@ -141,7 +141,7 @@ def make_policy(job: EpisodeJob) -> Any:
     if job.policy != "mpc" or job.model is None:
         raise ValueError(f"unknown policy spec {job.policy!r}")
     from pernav.model.dynamics import DynamicsModel
-    from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+    from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     from pernav.planner.factory import build_planner
 
     model = DynamicsModel(**job.model["config"])

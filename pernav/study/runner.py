@@ -43,9 +43,9 @@ from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
 from pernav.model.dynamics import DynamicsModel
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.model.timing import TARGETS as TIMING_TARGETS
 from pernav.model.timing import TimingModel, timing_features
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.config import LEARNERS, StudyConfig

@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import json
 import logging
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
@@ -38,6 +40,20 @@ from pernav.model.dynamics import road_of
 __all__ = ["KEYS", "RoundBuffers"]
 
 log = logging.getLogger("pernav.trainer")
+
+
+@contextmanager
+def _quiet_storage() -> Iterator[None]:
+    """TorchRL logs ``Initialized LazyTensorStorage with ... shape`` (INFO, to stdout) when a storage is first
+    filled; a round's buffer is an internal of ours, so that line stays off the user's console (TorchRL's
+    warnings and errors still show)."""
+    logger = logging.getLogger("torchrl")
+    level = logger.level
+    logger.setLevel(max(level, logging.WARNING))
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 #: The entries of a transition that the model needs (everything else is dropped when stored); a trajectory with
 #: the env's ``"route_ahead"`` also keeps ``"road"``, its first ``ROAD_MAX`` road points (:func:`road_of`).
@@ -99,7 +115,8 @@ class RoundBuffers:
         data.set("round", torch.full((T,), round_, dtype=torch.long))
         data.set("traj", torch.full((T,), self.n_traj, dtype=torch.long))
         self.n_traj += 1
-        self.buffers.setdefault(round_, self._new_buffer()).extend(data)
+        with _quiet_storage():
+            self.buffers.setdefault(round_, self._new_buffer()).extend(data)
         self.lengths.setdefault(round_, []).append(T)
         if T < self.L:
             log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
@@ -179,7 +196,8 @@ class RoundBuffers:
         out.generator.set_state(torch.tensor(meta["generator"], dtype=torch.uint8))
         for r in meta["rounds"]:
             buffer = out._new_buffer()
-            buffer.loads(folder / f"round_{r}")
+            with _quiet_storage():
+                buffer.loads(folder / f"round_{r}")
             out.buffers[int(r)] = buffer
             # the lengths from the stored trajectory ids (not in the manifest: older checkpoints lack them)
             out.lengths[int(r)] = torch.unique_consecutive(out.data(int(r))["traj"], return_counts=True)[1].tolist()

@@ -32,18 +32,18 @@ class HistoryWindow(Transform):
     categorical (``[...]`` or ``[..., 1]`` integers) or one-hot (``[..., n_actions]``); ``n_actions`` is read
     from the env's action spec unless given. A continuous action (a floating-point spec, e.g. Pendulum's) is
     recorded as it is: the action part of a row is the action itself. The window's dtype is the observation
-    spec's (float32 for integer observations).
+    spec's (float32 for integer observations). A scalar observation (shape ``()``, e.g. FrozenLake's cell index, a
+    ``Categorical``) is one column of the window, its value; one-hot encode it first to give the model its category.
 
     Example:
-        >>> from torchrl.envs import TransformedEnv
-        >>> from pernav.env.torchrl_env import explore_module, make_torchrl_env
-        >>> env = TransformedEnv(make_torchrl_env(config={"n_traffic": 2}, seed=0), HistoryWindow(K=4))
-        >>> td = env.rollout(3, policy=explore_module())
+        >>> from torchrl.envs import GymEnv, TransformedEnv
+        >>> env = TransformedEnv(GymEnv("CartPole-v1", categorical_action_encoding=True), HistoryWindow(K=4))
+        >>> td = env.rollout(3)
         >>> td["history"].shape
-        torch.Size([3, 4, 21])
-        >>> bool((td["next", "history"][1, -1, :14] == td["next", "observation"][1]).all())
+        torch.Size([3, 4, 6])
+        >>> bool((td["next", "history"][1, -1, :4] == td["next", "observation"][1]).all())
         True
-        >>> int(td["next", "history"][1, -2, 14:].argmax()) == int(td["action"][1])
+        >>> int(td["next", "history"][1, -2, 4:].argmax()) == int(td["action"][1])
         True
     """
 
@@ -89,6 +89,11 @@ class HistoryWindow(Transform):
                              "neither discrete (Categorical, OneHot) nor continuous (floating point)")
 
     # ----- window arithmetic --------------------------------------------------------------------
+    @staticmethod
+    def _vector(state: torch.Tensor, batch_dims: int) -> torch.Tensor:
+        """``state`` ``[..., S]``: a scalar observation (no dimension beyond the batch) as one column."""
+        return state.unsqueeze(-1) if state.ndim == batch_dims else state
+
     def _row(self, state: torch.Tensor) -> torch.Tensor:
         """``(state, zeros)`` as one row, shape ``[..., 1, S + n_actions]``, in the state's floating dtype
         (float32 for integer states)."""
@@ -137,7 +142,7 @@ class HistoryWindow(Transform):
     # ----- Transform API ------------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         # Partial resets of batched envs: TransformedEnv keeps the old window of the envs not reset.
-        state = tensordict_reset.get(self.state_key)
+        state = self._vector(tensordict_reset.get(self.state_key), tensordict_reset.batch_dims)
         tensordict_reset.set(self.out_key, self.initial_window(state))
         return tensordict_reset
 
@@ -147,7 +152,7 @@ class HistoryWindow(Transform):
             raise KeyError(f"HistoryWindow: {self.out_key!r} is missing from the step input; "
                            "start from env.reset() of the TransformedEnv")
         action = tensordict.get(self.action_key)
-        state = next_tensordict.get(self.state_key)
+        state = self._vector(next_tensordict.get(self.state_key), next_tensordict.batch_dims)
         window = self.next_window(window, action, state, batch_dims=tensordict.batch_dims)
         next_tensordict.set(self.out_key, window)
         return next_tensordict
@@ -161,7 +166,12 @@ class HistoryWindow(Transform):
 
     def _spec(self, spec: Composite) -> Unbounded:
         state_spec = spec[self.state_key]
-        width = state_spec.shape[-1] + self.n_actions
+        features = state_spec.shape[len(spec.shape):]  # beyond the env's batch: () for a scalar observation
+        if len(features) > 1:
+            raise ValueError(f"HistoryWindow records vector observations [..., S] (or scalars); observation "
+                             f"{self.state_key!r} has shape {tuple(features)} per step ({type(state_spec).__name__}): "
+                             "flatten it first (torchrl's FlattenObservation)")
+        width = (features[0] if features else 1) + self.n_actions
         # the window's dtype is the observation's (float64 stays float64), float32 for integer observations
         dtype = state_spec.dtype if state_spec.dtype.is_floating_point else torch.float32
         return Unbounded(shape=(*spec.shape, self.K, width), dtype=dtype, device=state_spec.device)

@@ -24,7 +24,7 @@ import torch
 
 from pernav.env.torchrl_env import explore_module
 from pernav.model import DynamicsModel, adapt, multistep_loss
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import TreeSearchPlanner
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env
