@@ -213,3 +213,80 @@ def test_off_the_route_an_arrow_shows_the_way_back():
     w = view.size[0]
     badge = image[w // 2 - 40: w // 2 + 40, 135 - 40: 135 + 40]  # the arrow's dark disc below the prompt
     assert _mask(badge, "route").sum() > 300
+
+
+# ----- the truck's handling for a person ---------------------------------------------------------------------
+class _Keys:
+    """Throttle for two seconds, then the left key held for a second, then the brake: a person's keyboard."""
+
+    keeps_lanes = False
+    quit_requested = False
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.log: list[tuple[float, float]] = []  # (steering angle, speed) after each frame's inputs
+
+    def poll(self) -> None:
+        pass
+
+    def read(self, car):
+        from pernav.world.simulation import ControlInput
+
+        self.frames += 1
+        self.log.append((float(car.steer), float(car.speed)))
+        if self.frames <= 20:
+            return ControlInput(throttle=1.0, digital=True)
+        if self.frames <= 30:
+            return ControlInput(steer=-1.0, digital=True)
+        return ControlInput(brake=1.0, digital=True)
+
+
+def _drive_keys(vehicle: str) -> list[tuple[float, float]]:
+    keys = _Keys()
+    PlaySession("Town1", 0, n_traffic=0, controls=keys, context={"vehicle": vehicle}).run(max_steps=4)
+    return keys.log
+
+
+def test_the_truck_handles_differently_for_a_person():
+    car, truck = _drive_keys("camaro"), _drive_keys("cybertruck")
+    assert truck[20][1] < 0.8 * car[20][1]  # less acceleration (VehicleModel.accel_scale)
+    assert abs(truck[24][0]) < 0.85 * abs(car[24][0])  # a slower wheel (the simulated driver's steering lag)
+    assert min(car[35][1], truck[35][1]) > 0  # both still rolling: the speed lost is the deceleration
+    lost_car, lost_truck = car[32][1] - car[35][1], truck[32][1] - truck[35][1]
+    assert 0 < lost_truck < 0.8 * lost_car  # gentler braking (VehicleModel.max_decel)
+
+
+def test_the_person_handling_leaves_simulated_drivers_alone():
+    from pernav.env.navigation import NavigationEnv
+    from pernav.play.handling import apply_handling
+    from pernav.world.simulation import DriverCar
+
+    constants = (DriverCar.KEY_STEER_RATE, DriverCar.KEY_CENTRE_RATE, DriverCar.WHEEL_LAG)
+
+    def simulated() -> tuple:
+        env = NavigationEnv("Town1", config={"n_traffic": 2})
+        _, info = env.reset(seed=0, options={"route": 0, "user": "user3", "context": {"vehicle": "cybertruck"}})
+        for _ in range(40):
+            _, _, done, cut, info = env.step(info["explore_action"])
+            if done or cut:
+                break
+        return tuple(env.world.ego.position), env.tracking_cost
+
+    before = simulated()
+    session = PlaySession("Town1", 0, n_traffic=0, context={"vehicle": "cybertruck"})
+    session.run(max_steps=1)
+    assert session.nav.world.ego.KEY_STEER_RATE < DriverCar.KEY_STEER_RATE  # the person's truck only
+    assert (DriverCar.KEY_STEER_RATE, DriverCar.KEY_CENTRE_RATE, DriverCar.WHEEL_LAG) == constants
+    assert apply_handling(session.nav.world.ego) == 1.25
+    assert simulated() == before
+
+
+def test_docstring_examples():
+    import doctest
+
+    import pernav.play.cameras
+    import pernav.play.handling
+    import pernav.play.scene
+
+    for module in (pernav.play.cameras, pernav.play.handling, pernav.play.scene):
+        assert doctest.testmod(module).failed == 0, module.__name__
