@@ -361,7 +361,7 @@ def bench_play(quick: bool = False, screenshots: str | None = None) -> dict[str,
     second's start the policy and the env's step) plus its pictures (30 per second over 10 world frames: 3 each); at
     10 world frames per second a frame must take under 100 ms for real time, and a picture under 33 ms for 30
     pictures per second. A picture's time is one draw of the view. The same drive without drawing is the reference.
-    ``screenshots``: a folder to save one picture per view in (``<camera>[_fog].png``, 13 s into the drive, at the
+    ``screenshots``: a folder to save one picture per view in (``view_<camera>[_fog].png``, 13 s into the drive, at the
     first junction, whose route turns left)."""
     import os
     from pathlib import Path
@@ -373,7 +373,7 @@ def bench_play(quick: bool = False, screenshots: str | None = None) -> dict[str,
     out: dict[str, Any] = {"world_frames": 0, "pictures_per_world_frame": 3}
     for camera, visual in PLAY_VIEWS:
         name = camera if visual == "normal" else f"{camera}_fog"
-        shot = None if screenshots is None else Path(screenshots) / f"{name}.png"
+        shot = None if screenshots is None else Path(screenshots) / f"view_{name}.png"
         session = PlaySession("Town3", 1, n_traffic=8, draw=True, realtime=False, screenshot=shot, screenshot_at=13.0,
                               context={"camera": camera, "visual": visual})
         pictures: list[float] = []

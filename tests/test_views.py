@@ -290,3 +290,12 @@ def test_docstring_examples():
 
     for module in (pernav.play.cameras, pernav.play.handling, pernav.play.scene):
         assert doctest.testmod(module).failed == 0, module.__name__
+
+
+def test_bench_screenshots_option_is_checked_first(tmp_path, capsys):
+    from pernav.cli import main
+
+    assert main(["bench", "sim", "--screenshots", str(tmp_path)]) == 2  # only the play benchmark takes pictures
+    assert main(["bench", "play", "--screenshots", str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 2 and "--screenshots" in err
