@@ -287,8 +287,9 @@ def test_docstring_examples():
     import pernav.play.cameras
     import pernav.play.handling
     import pernav.play.scene
+    import pernav.play.seat
 
-    for module in (pernav.play.cameras, pernav.play.handling, pernav.play.scene):
+    for module in (pernav.play.cameras, pernav.play.handling, pernav.play.scene, pernav.play.seat):
         assert doctest.testmod(module).failed == 0, module.__name__
 
 

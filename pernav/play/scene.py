@@ -24,7 +24,7 @@ from highway_env.road.lane import LineType
 from pernav.world.simulation import World
 from pernav.world.towns import LANE_WIDTH, Town
 
-__all__ = ["PALETTE", "TownScene", "paint_plan", "town_scene"]
+__all__ = ["PALETTE", "TownScene", "marking_quads", "paint_plan", "town_scene"]
 
 # one palette for every view; markings are pure white (a test and a person both look for them)
 PALETTE: dict[str, tuple[int, int, int]] = {
@@ -173,3 +173,20 @@ def paint_plan(surface: Any, scene: TownScene, origin: np.ndarray, scaling: floa
         w = max(1, round(width * scaling))
         for a, b in ((segments - origin) * scaling).tolist():
             pygame.draw.line(surface, PALETTE[colour], a, b, w)
+
+
+def _quads(segments: np.ndarray, width: float) -> np.ndarray:
+    """``[K, 4, 2]`` corners of painted lines ``width`` metres wide along ``segments`` (``[K, 2, 2]``)."""
+    if not len(segments):
+        return np.zeros((0, 4, 2))
+    along = segments[:, 1] - segments[:, 0]
+    side = np.stack([-along[:, 1], along[:, 0]], axis=1)
+    side *= width / 2 / np.maximum(np.linalg.norm(side, axis=1, keepdims=True), 1e-9)
+    a, b = segments[:, 0], segments[:, 1]
+    return np.stack([a - side, b - side, b + side, a + side], axis=1)
+
+
+def marking_quads(scene: TownScene) -> list[tuple[np.ndarray, str]]:
+    """The painted lines of ``scene`` as ``[K, 4, 2]`` quads with their palette colour (views that draw polygons)."""
+    return [(_quads(scene.dashes, STRIPE), "marking"), (_quads(scene.stop_lines, STOP_LINE), "marking"),
+            (_quads(scene.box_lines, BOX_LINE), "box")]
