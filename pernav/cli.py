@@ -324,7 +324,11 @@ def _personalize(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> None:
     from pernav.bench import run_benchmarks
 
-    figures = run_benchmarks(args.which, quick=args.quick)
+    if args.screenshots is not None and args.which != "play":
+        raise UsageError("--screenshots goes with pernav bench play")
+    if args.screenshots is not None and not Path(args.screenshots).is_dir():
+        raise UsageError(f"--screenshots {args.screenshots!r}: no such folder")
+    figures = run_benchmarks(args.which, quick=args.quick, screenshots=args.screenshots)
     if args.json:
         print(json.dumps(figures, indent=2))
     else:
@@ -423,6 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("which", nargs="?", default="all", choices=[*BENCH_CHOICES, "all"])
     p.add_argument("--json", action="store_true")
     p.add_argument("--quick", action="store_true", help="shorter measurement (for smoke tests)")
+    p.add_argument("--screenshots", metavar="DIR", help="with play: save a picture of each view in this folder")
     p.set_defaults(func=_bench)
 
     p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")

@@ -46,6 +46,7 @@ from tensordict import TensorDictBase
 
 from pernav.env.navigation import load_user
 from pernav.play.controls import ScriptedControls
+from pernav.play.handling import apply_handling
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.layout import ACTION_NAMES, PLAYBACK, audio_duration
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
@@ -331,6 +332,7 @@ class PlaySession:
         td = self.env.reset()
         nav = self.nav
         nav.world.ego.external = self.controls
+        apply_handling(nav.world.ego)  # the person's truck steers as slowly as the simulated truck driver's
         nav.world.ego.color = (50, 200, 0)  # drawn green among the blue traffic
         nav.on_prompt, nav.on_frame = self._on_prompt, self._on_frame
         self._snapshot()

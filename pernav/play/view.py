@@ -1,8 +1,10 @@
-"""The play window: the town around the car, the route ahead, the prompt with the distance to its manoeuvre.
+"""The play window: the town around the car seen through the context's camera, the route ahead, the prompt with
+the distance to its manoeuvre, the speed limit, and the way back when the car has left its route.
 
-Drawn with highway-env's pygame graphics; the town's roads are drawn once onto a large surface and each frame
-shows the part around the car (drawing every lane each frame would cost more than the simulation). Cars may be
-drawn between two simulation frames (``alpha``) so the picture moves smoothly at more frames than the world has.
+The view follows the drive's context (``--camera``, ``--visual``; :class:`~pernav.world.drivers.Context`): ``top``
+the north-up map, ``third_person`` a heading-up chase view, ``first_person`` the driver's seat; ``foggy`` veils
+what lies beyond the simulated driver's sight distance (:mod:`pernav.play.cameras`). Cars may be drawn between two
+simulation frames (``alpha``) so the picture moves smoothly at more frames than the world has.
 
 Example (no display needed: an off-screen surface):
     >>> from pernav.play.loop import PlaySession
@@ -13,6 +15,7 @@ Example (no display needed: an off-screen surface):
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -21,10 +24,12 @@ import numpy as np
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
-__all__ = ["DisplayError", "PlayView"]
+__all__ = ["DisplayError", "PlayView", "frame_of"]
 
 EGO_COLOR = (50, 200, 0)
 PROMPT_SECONDS = 5.0  # a played prompt stays on screen this long after its audio
+OFF_ROUTE = 4.0  # m from the route's line beyond which the way back is shown (the env re-plans at 8 m)
+ROUTE_AHEAD = 250.0  # m of the route drawn ahead of the car
 
 
 class DisplayError(ValueError):
@@ -32,11 +37,13 @@ class DisplayError(ValueError):
 
 
 class PlayView:
-    """A window (``window=True``) or an off-screen surface of ``size`` pixels at ``scaling`` pixels per metre."""
+    """A window (``window=True``) or an off-screen surface of ``size`` pixels at ``scaling`` pixels per metre (the
+    map views). ``camera`` (``top``, ``third_person``, ``first_person``) and ``visual`` (``foggy`` veils the view)
+    default to the drive's context, read at the first :meth:`draw`."""
 
-    def __init__(self, town: Any, size: tuple[int, int] = (960, 720), scaling: float = 6.0, window: bool = False) -> None:
+    def __init__(self, town: Any, size: tuple[int, int] = (960, 720), scaling: float = 6.0, window: bool = False,
+                 camera: str | None = None, visual: str | None = None) -> None:
         import pygame
-        from highway_env.road.graphics import RoadGraphics, WorldSurface
 
         self.pygame = pygame
         self.window = window
@@ -57,53 +64,38 @@ class PlayView:
         else:
             self.surface = pygame.Surface(size)
         pygame.font.init()  # fonts only: pygame.init() would open audio devices
-        self.size, self.scaling = size, scaling
-        self.world = WorldSurface(size, 0, pygame.Surface(size))
-        self.world.scaling = scaling
-        # the town's roads, drawn once
-        x0, x1, y0, y1 = town.bounds(margin=60.0)
-        self.road_origin = np.array([x0, y0])
-        road = WorldSurface((int((x1 - x0) * scaling), int((y1 - y0) * scaling)), 0,
-                            pygame.Surface((int((x1 - x0) * scaling), int((y1 - y0) * scaling))))
-        road.scaling, road.origin = scaling, self.road_origin
-        RoadGraphics.display(_RoadOnly(town.network), road)
-        self.road = road
+        self.town, self.size, self.scaling = town, size, scaling
+        self.camera_name, self.visual = camera, visual
+        self.camera: Any = None  # made at the first draw (the drive's context says which)
+        self.fog: Any = None
+        self.limit_kmh: float | None = None  # the speed limit of the street the car is on (kept through junctions)
         self.big = pygame.font.Font(None, 54)
         self.font = pygame.font.Font(None, 28)
         self.small = pygame.font.Font(None, 22)
 
+    def _choose(self, session: Any) -> None:
+        from pernav.play.cameras import Fog, make_camera
+
+        context = getattr(getattr(session.nav, "driver", None), "context", None)
+        if self.camera_name is None:
+            self.camera_name = context.camera if context is not None else "top"
+        if self.visual is None:
+            self.visual = context.visual if context is not None else "normal"
+        options = {} if self.camera_name == "first_person" else {"scaling": self.scaling}
+        self.camera = make_camera(self.camera_name, self.town, self.size, **options)
+        self.fog = Fog.for_visual(self.visual, self.camera_name)
+
     def draw(self, session: Any, alpha: float = 1.0) -> None:
         """Draw ``session``'s world with every car ``alpha`` of the way from its last frame to this one."""
-        from highway_env.vehicle.graphics import VehicleGraphics
-
         from pernav.world.layout import ACTION_NAMES
 
-        pg, surf, nav = self.pygame, self.world, session.nav
-        world = nav.world
-        placed = session.interpolated(alpha)
-        ego_pos = placed[id(world.ego)][0]
-        surf.move_display_window_to(ego_pos)
-        surf.fill(surf.GREY)
-        offset = (surf.origin - self.road_origin) * self.scaling
-        surf.blit(self.road, (0, 0), area=pg.Rect(int(offset[0]), int(offset[1]), *self.size))
-        route = nav.route
-        ahead = route.waypoints[(route.s >= nav.progress) & (route.s <= nav.progress + 250)]
-        if len(ahead) > 1:
-            pg.draw.lines(surf, (60, 140, 255), False, [surf.vec2pix(p) for p in ahead], 3)
-        pg.draw.circle(surf, (255, 80, 80), surf.vec2pix(route.destination), 6)
-        for car in world.cars:
-            pos, heading = placed.get(id(car), (car.position, car.heading))
-            saved = car.position, car.heading
-            car.position, car.heading = pos, heading  # drawn where it is between two frames
-            if car is world.ego:
-                car.color = EGO_COLOR
-            try:
-                VehicleGraphics.display(car, surf, offscreen=True)
-            finally:
-                car.position, car.heading = saved
-        out = self.surface
-        out.blit(surf, (0, 0))
+        if self.camera is None:
+            self._choose(session)
+        frame = frame_of(session, alpha)
+        self.camera.draw(self.surface, frame, self.fog)
         self._hud(session, ACTION_NAMES)
+        self._speed_limit(session)
+        self._way_back(session, frame)
 
     def _hud(self, session: Any, names: tuple[str, ...]) -> None:
         pg, out, nav = self.pygame, self.surface, session.nav
@@ -120,7 +112,7 @@ class PlayView:
         status = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}"
                   f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
                   f"re-routes {nav.reroutes}")
-        band = pg.Surface((w, 30), pg.SRCALPHA)
+        band = pg.Surface((w, 56), pg.SRCALPHA)  # behind the status and the hint: readable over fog and grass
         band.fill((0, 0, 0, 150))
         out.blit(band, (0, h - 56))
         out.blit(self.font.render(status, True, (255, 255, 255)), (10, h - 52))
@@ -128,6 +120,60 @@ class PlayView:
         if ego.stop_ahead is not None and ego.stop_ahead < 30.0:
             hint = f"give way: stop line in {ego.stop_ahead:3.0f} m   " + hint
         out.blit(self.small.render(hint, True, (230, 230, 230)), (10, h - 22))
+
+    def _speed_limit(self, session: Any) -> None:
+        """A speed-limit sign (the street's limit: a junction's slower connectors keep the street's sign) and the
+        car's speed beside it, red when over the limit."""
+        pg, out = self.pygame, self.surface
+        ego = session.nav.world.ego
+        lane = getattr(ego, "lane_index", None)
+        if lane is not None and (self.limit_kmh is None or lane not in self.town.lane_junction):
+            self.limit_kmh = 10.0 * round(float(self.town.lane(lane).speed_limit) * 3.6 / 10.0)
+        if self.limit_kmh is None:
+            return
+        w = self.size[0]
+        centre, radius = (w - 60, 120), 38
+        pg.draw.circle(out, (255, 255, 255), centre, radius)
+        pg.draw.circle(out, (210, 30, 30), centre, radius, 7)
+        text = self.font.render(f"{self.limit_kmh:.0f}", True, (0, 0, 0))
+        out.blit(text, (centre[0] - text.get_width() // 2, centre[1] - text.get_height() // 2))
+        speed = ego.speed * 3.6
+        colour = (255, 70, 70) if speed > self.limit_kmh + 3.0 else (255, 255, 255)
+        shown = self.big.render(f"{speed:.0f}", True, colour)
+        box = pg.Surface((shown.get_width() + 16, shown.get_height() + 8), pg.SRCALPHA)
+        box.fill((0, 0, 0, 150))
+        out.blit(box, (centre[0] - radius - box.get_width() - 12, centre[1] - box.get_height() // 2))
+        out.blit(shown, (centre[0] - radius - shown.get_width() - 20, centre[1] - shown.get_height() // 2 + 2))
+
+    def _way_back(self, session: Any, frame: Any) -> None:
+        """Off the route (or off the road): an arrow to where the route goes on, its distance, and the next
+        manoeuvre."""
+        pg, out, nav = self.pygame, self.surface, session.nav
+        ego = nav.world.ego
+        _, off = nav.route.project(ego.position, hint=nav.progress)
+        if off <= OFF_ROUTE and not ego.off_road:
+            return
+        target = nav.route.point_at(nav.progress + 15.0)
+        way = self.camera.basis(frame) @ (target - frame.ego)
+        way = way / max(float(np.linalg.norm(way)), 1e-9)
+        side = np.array([-way[1], way[0]])
+        centre, r = np.array([self.size[0] / 2, 135.0]), 42.0
+        pg.draw.circle(out, (20, 20, 20), centre.tolist(), r + 6)
+        tip, tail = centre + way * r, centre - way * r * 0.8
+        neck = centre + way * r * 0.1
+        arrow = [tip, neck + side * r * 0.6, neck + side * r * 0.22, tail + side * r * 0.22,
+                 tail - side * r * 0.22, neck - side * r * 0.22, neck - side * r * 0.6]
+        pg.draw.polygon(out, (60, 140, 255), [p.tolist() for p in arrow])
+        lines = [f"back to the route: {off:.0f} m"]
+        if math.isfinite(getattr(session, "distance", math.inf)):
+            lines.append(f"then {session.next_manoeuvre} in {session.distance:.0f} m")
+        for k, line in enumerate(lines):
+            text = self.font.render(line, True, (255, 255, 255))
+            box = pg.Surface((text.get_width() + 12, text.get_height() + 6), pg.SRCALPHA)
+            box.fill((0, 0, 0, 170))
+            y = int(centre[1] + r + 12 + 28 * k)
+            out.blit(box, (int(centre[0]) - box.get_width() // 2, y - 3))
+            out.blit(text, (int(centre[0]) - text.get_width() // 2, y))
 
     def present(self) -> None:
         """Show the drawn frame in the window (nothing off screen)."""
@@ -145,8 +191,24 @@ class PlayView:
             self.pygame.display.quit()
 
 
-class _RoadOnly:
-    """What ``RoadGraphics.display`` reads of a road: its network."""
+def frame_of(session: Any, alpha: float = 1.0) -> Any:
+    """What the views show of ``session`` (a :class:`~pernav.play.loop.PlaySession`) with every car ``alpha`` of
+    the way from its last frame to this one: a :class:`~pernav.play.cameras.Frame`."""
+    from highway_env.vehicle.graphics import VehicleGraphics
 
-    def __init__(self, network: Any) -> None:
-        self.network = network
+    from pernav.play.cameras import CarShape, Frame
+
+    nav = session.nav
+    world = nav.world
+    placed = session.interpolated(alpha)
+    cars = []
+    for car in world.cars:
+        pos, heading = placed.get(id(car), (car.position, car.heading))
+        ego = car is world.ego
+        colour = EGO_COLOR if ego else tuple(VehicleGraphics.get_color(car)[:3])
+        cars.append(CarShape(np.asarray(pos, dtype=float), float(heading), float(car.LENGTH), float(car.WIDTH),
+                             colour, ego))
+    ego_pos, ego_heading = placed[id(world.ego)]
+    route = nav.route
+    ahead = route.waypoints[(route.s >= nav.progress) & (route.s <= nav.progress + ROUTE_AHEAD)]
+    return Frame(np.asarray(ego_pos, dtype=float), float(ego_heading), cars, ahead, route.destination)
