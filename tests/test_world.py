@@ -161,7 +161,7 @@ def test_plan_route_passes_through_goals():
 
 def test_scalar_clamp_is_np_clip():
     """The simulator's fast scalar clamp gives np.clip's value for every kind of input, NaN and infinities included."""
-    from pernav.world.simulation import _clamp
+    from pernav.world.vehicles import _clamp
 
     rng = np.random.default_rng(0)
     values = [*rng.normal(0, 3, 200), 0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, np.float64(2.5), 3]
