@@ -200,7 +200,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
     @torch.no_grad()
     def search(self, roots: TensorDictBase) -> SearchResult:
         """The best sequence from each root of a flat ``[B]`` tensordict (see the class docstring)."""
-        B, A = roots.shape[0], self.n_actions
+        B = roots.shape[0]
         H = self.levels(roots)
         mask = None if self.mask_key is None else roots.get(self.mask_key).bool()  # once per search, not per level
         nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
@@ -215,23 +215,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         for level in range(H):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
             level_allowed = self.allowed(roots, level, mask)  # [B, A]
-            if B == 1:  # one root (a deployed planner): every node is real, each expands the same actions
-                actions = level_allowed[0].nonzero().squeeze(-1)
-                if not actions.numel():
-                    self._refuse_unplannable(level_allowed, level)
-                keep = None
-                k = parent_count * actions.numel()
-                index = torch.arange(parent_count, device=device).repeat_interleave(actions.numel())
-                parent, action = index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0)
-            else:
-                if not bool(level_allowed.any(-1).all()):
-                    self._refuse_unplannable(level_allowed, level)
-                allowed = (valid.unsqueeze(-1) & level_allowed.unsqueeze(1)).reshape(B, -1)  # [B, N*A]
-                k = max(int(allowed.sum(-1).max()), 1)
-                pick = torch.argsort((~allowed).to(torch.int8), dim=-1, stable=True)[:, :k]  # allowed first, in order
-                keep = allowed.gather(-1, pick)
-                parent, action = pick.div(A, rounding_mode="floor"), pick.remainder(A)
-                index = (parent + rows * parent_count).reshape(-1)  # into the flat [B * N] nodes
+            k, index, parent, action, keep = self._expand(level_allowed, valid, parent_count, rows, level)
             out = self._step({key: v[index] for key, v in nodes.items()}, action.reshape(-1))
             children = {key: out[key].reshape(B, k, *out[key].shape[1:]) for key in self.state_keys}
             children.update({key: out[key] for key in self._extra_keys if key in out})
@@ -261,6 +245,31 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
                 alive = None if alive is None else alive.gather(-1, top)
                 parent_count = self.beam_width
         nodes = {key: v.reshape(B, parent_count, *v.shape[1:]) for key, v in nodes.items()}
+        return self._best(roots, nodes, seqs, ret, alive, valid, rows, evaluations)
+
+    def _expand(self, level_allowed: torch.Tensor, valid: torch.Tensor, parent_count: int, rows: torch.Tensor,
+                level: int) -> tuple[int, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Every (node, action) pair the mask allows at ``level``, packed per root in order (root-major,
+        action-minor): the children per root ``k``, the flat parent ``index``, the ``[B, k]`` parent and action,
+        and which children are real (``None``: all of them)."""
+        B, A, device = level_allowed.shape[0], self.n_actions, rows.device
+        if B == 1:  # one root (a deployed planner): every node is real, each expands the same actions
+            actions = level_allowed[0].nonzero().squeeze(-1)
+            if not actions.numel():
+                self._refuse_unplannable(level_allowed, level)
+            index = torch.arange(parent_count, device=device).repeat_interleave(actions.numel())
+            return parent_count * actions.numel(), index, index.unsqueeze(0), actions.repeat(parent_count).unsqueeze(0), None
+        if not bool(level_allowed.any(-1).all()):
+            self._refuse_unplannable(level_allowed, level)
+        allowed = (valid.unsqueeze(-1) & level_allowed.unsqueeze(1)).reshape(B, -1)  # [B, N*A]
+        k = max(int(allowed.sum(-1).max()), 1)
+        pick = torch.argsort((~allowed).to(torch.int8), dim=-1, stable=True)[:, :k]  # allowed first, in order
+        parent, action = pick.div(A, rounding_mode="floor"), pick.remainder(A)
+        return k, (parent + rows * parent_count).reshape(-1), parent, action, allowed.gather(-1, pick)
+
+    def _best(self, roots: TensorDictBase, nodes: dict[str, torch.Tensor], seqs: torch.Tensor, ret: torch.Tensor,
+              alive: torch.Tensor | None, valid: torch.Tensor, rows: torch.Tensor, evaluations: int) -> SearchResult:
+        """The leaves' values and the sequence rewards added, the best sequence per root."""
         if self.value_module is not None:
             leaves = TensorDict(batch_size=[ret.numel()])
             for key, v in nodes.items():
@@ -275,6 +284,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             log.warning("DiscreteTreeSearchPlanner: %d non-finite sequence returns", int((~finite).sum()))
         best = torch.nan_to_num(ret, nan=float("-inf")).argmax(-1)  # the first best: ties go to the lower sequence
         return SearchResult(seqs[rows[:, 0], best], ret[rows[:, 0], best], evaluations)
+
 
     def _refuse_unplannable(self, allowed: torch.Tensor, level: int) -> None:
         """Raise for roots whose ``allowed`` ``[B, A]`` row is all false: no sequence exists there, and the search

@@ -132,6 +132,26 @@ def _with_playback(module: Callable[[TensorDictBase], TensorDictBase], playback:
     return policy
 
 
+def _check_drive_arguments(town: str, route: Any, policy: Any, playback: str, seed: int, fps: int,
+                           countdown: float) -> None:
+    """Refuse a drive's bad arguments before anything is built, naming the argument and what is allowed."""
+    if town not in TOWN_NAMES:
+        raise TownError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
+    n_routes = len(get_town(town).routes)
+    if isinstance(route, bool) or not isinstance(route, (int, np.integer)) or not 0 <= route < n_routes:
+        raise TownError(f"route index {route!r} out of range [0, {n_routes - 1}] for {town}")
+    if isinstance(policy, str) and policy not in POLICIES:
+        raise PlayError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)} (or pass a callable)")
+    if playback not in PLAYBACK:
+        raise PlayError(f"unknown playback {playback!r}; choose one of {', '.join(PLAYBACK)}")
+    if seed < 0:
+        raise PlayError(f"seed must be >= 0, got {seed}")
+    if fps < 1:
+        raise PlayError(f"fps must be >= 1, got {fps}")
+    if countdown < 0:
+        raise PlayError(f"countdown must be >= 0 seconds, got {countdown}")
+
+
 class PlaySession:
     """One drive of ``route`` in ``town`` by a person (or the scripted bot) with prompts from ``policy``.
 
@@ -163,21 +183,7 @@ class PlaySession:
         from pernav.env.torchrl_env import explore_module, oracle_module
         from pernav.trainer.collect import history_env
 
-        if town not in TOWN_NAMES:
-            raise TownError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
-        n_routes = len(get_town(town).routes)
-        if isinstance(route, bool) or not isinstance(route, (int, np.integer)) or not 0 <= route < n_routes:
-            raise TownError(f"route index {route!r} out of range [0, {n_routes - 1}] for {town}")
-        if isinstance(policy, str) and policy not in POLICIES:
-            raise PlayError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)} (or pass a callable)")
-        if playback not in PLAYBACK:
-            raise PlayError(f"unknown playback {playback!r}; choose one of {', '.join(PLAYBACK)}")
-        if seed < 0:
-            raise PlayError(f"seed must be >= 0, got {seed}")
-        if fps < 1:
-            raise PlayError(f"fps must be >= 1, got {fps}")
-        if countdown < 0:
-            raise PlayError(f"countdown must be >= 0 seconds, got {countdown}")
+        _check_drive_arguments(town, route, policy, playback, seed, fps, countdown)
         profile, ctx = load_user(user)
         ctx_dict = {**(ctx.to_dict() if ctx else {}), **(context or {})}
         unknown = sorted(set(ctx_dict) - set(CONTEXT_CHOICES))
