@@ -1,4 +1,4 @@
-"""Behaviour the simulator must show (issue #2 acceptance); slower, still run in CI."""
+"""Behaviour the simulator must show; slower, still run in CI."""
 
 import numpy as np
 import pytest
@@ -15,11 +15,11 @@ PROFILES = {
     "truck": (named_user("user7"), Context(vehicle="cybertruck")),
 }
 # docs/simulator.md users whose timing differs from the population average, and for whom the oracle beats
-# explore by the criterion of recipes/oracle_vs_explore.py (paired episodes, fixed before the runs;
+# explore on paired episodes (the criterion was fixed before the runs; docs/research/scripts/oracle_vs_explore.py,
 # figures in docs/simulator.md). The fast keyboard driver (user4) and the distracted one (user6) do
 # not meet it: explore's timing already suits them (docs/simulator.md, "Known gaps"). user5 in fog in the
-# truck met it on world v1 and ties on world v2 (oracle cheaper on 10, dearer on 10 of these 20 episodes,
-# measured once on the frozen world): it is no longer among the users this test claims.
+# truck ties (oracle cheaper on 10, dearer on 10 of these 20 episodes): it is not among the users this test
+# claims.
 ATYPICAL = {
     "slow_fog_truck": ("user3", {"vehicle": "cybertruck", "visual": "foggy"}),
     "elderly_like": ("user3", {}),
@@ -69,7 +69,7 @@ def test_explore_completes_routes_with_the_average_driver():
         done += sum(e["completed"] for e in out["episodes"])
         collisions += out["summary"]["collisions"]
     print(f"explore, average driver: {done}/50 routes completed, {collisions} collisions")
-    assert done >= 48  # issue #2: explore is a strong baseline (>= 95 % with the average driver)
+    assert done >= 48  # explore is a strong baseline (>= 95 % with the average driver)
     assert collisions <= 8
 
 

@@ -1,4 +1,4 @@
-"""Components of the method used on their own (issue #3, parts 6-7): planner vs brute force, masks in a
+"""Components of the method used on their own: planner vs brute force, masks in a
 real env, replay windows, the meta-gradient through U(P, tau), save/load, the imagined env, the docs.
 
 Small models (hidden (16, 16) or less) wherever the size does not matter; everything is seeded.

@@ -1,4 +1,4 @@
-"""The model ensemble (issue #10): batched imagination equals member by member, training, checkpoints,
+"""The model ensemble: batched imagination equals member by member, training, checkpoints,
 and the held-out round loss."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Fuzzing the world (issue #5, docs/reliability.md): random actions, drivers, contexts, seeds and routes.
+"""Fuzzing the world (docs/reliability.md): random actions, drivers, contexts, seeds and routes.
 
 For every town and both action spaces (7 instructions, 21 = 7 x playback speed), episodes of the
 registered gymnasium env with actions drawn uniformly from the action space, a random driver from the

@@ -1,4 +1,4 @@
-"""pernav's TorchRL parts on other tasks than the towns (issue #32): HistoryWindow on any env, light imports,
+"""pernav's TorchRL parts on other tasks than the towns: HistoryWindow on any env, light imports,
 the imagined navigation env's specs."""
 
 import subprocess
@@ -105,7 +105,7 @@ def test_history_window_refuses_an_action_outside_its_range(bad):
         window.next_window(torch.zeros(3, 2, 21), torch.tensor([0, bad, 1]), torch.zeros(3, 14))
 
 
-# ----- RoundBuffers with trajectories shorter than L (issue #40) ---------------------------------------
+# ----- RoundBuffers with trajectories shorter than L ----------------------------------------------------------
 def _numbered(start: int, T: int, K: int = 1) -> TensorDict:
     """A 4-d ``[T]`` trajectory whose first observation entry is its global step number ``start + t``."""
     obs = torch.zeros(T, 4)

@@ -256,7 +256,7 @@ def test_cli_without_a_display_exits_2_and_writes_nothing(tmp_path, capsys, monk
     assert not rec.exists()
 
 
-# ----- issue 41: a session that survives a slip, checks before anyone drives, wheels ------------------------------
+# ----- a session that survives a slip, checks before anyone drives, wheels ------------------------------
 class KeyBot(ScriptedControls):
     """The scripted bot drives; at given polls it presses and releases session keys ("press escape", "release
     escape"), on a clock of 0.1 s per poll; ``go_at``: the poll from which it is ready (Enter)."""

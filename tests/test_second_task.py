@@ -1,4 +1,4 @@
-"""The model, adaptation and trainers free of the navigation state (issue #32): a 2-d linear system whose
+"""The model, adaptation and trainers free of the navigation state: a 2-d linear system whose
 dynamics change per round, the EnsembleTrainer on it, and the CartPole recipe end to end (tiny)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The play window's views (issue #41): top, third_person (heading-up chase), first_person (driver's seat), fog.
+"""The play window's views: top, third_person (heading-up chase), first_person (driver's seat), fog.
 
 Headless: every view draws on an off-screen pygame surface; the pictures are read back as pixel arrays.
 """

@@ -87,7 +87,7 @@ def seeded_sweep(profile: DriverProfile, context: Context, leads=None, seeds: It
                  ) -> list[dict[str, Any]]:
     """Per lead time: the share of each outcome over ``seeds`` and the mean tracking cost and collisions.
 
-    World v2 draws each prompt's reaction time, so one lead gives a spread of outcomes; the same seeds are
+    The world draws each prompt's reaction time, so one lead gives a spread of outcomes; the same seeds are
     used at every lead (paired).
 
     >>> from pernav.world.drivers import named_user, Context

@@ -173,4 +173,4 @@ class PersonAtTheWheel:
         self.stop_ahead = world.stop_line(self)
         jid = town.lane_junction.get(self.path[0])
         if jid is not None and town.junctions[jid].kind == "cross" and self.entered_arm is not None:
-            world.row.holders[jid].setdefault(id(self), self.entered_arm)
+            world.right_of_way.holders[jid].setdefault(id(self), self.entered_arm)

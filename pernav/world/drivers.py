@@ -272,7 +272,7 @@ def named_user(name: str) -> DriverProfile:
 
 @dataclass
 class Population:
-    """Prior over drivers: each profile field uniform in its SPEC range (``ranges`` may narrow
+    """Prior over drivers: each profile field uniform in its :data:`PROFILE_RANGES` range (``ranges`` may narrow
     them), contexts uniform over their choices unless fixed.
 
     >>> pop = Population(seed=0)
@@ -311,7 +311,7 @@ PANEL_POPULATION_SEED = 2022
 
 def population_samples(n: int, seed: int = PANEL_POPULATION_SEED) -> list[tuple[DriverProfile, Context]]:
     """The first ``n`` draws of ``Population(seed=seed)``: the population samples of the diagnostics panel
-    (:mod:`pernav.diagnostics.panel`, and written out in ``recipes/configs/headroom.yaml``), so no figure is
+    (:mod:`pernav.diagnostics.panel`, and written out in ``docs/research/configs/headroom.yaml``), so no figure is
     tuned to the named users alone.
 
     >>> a, b = population_samples(2)

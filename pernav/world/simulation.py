@@ -70,7 +70,7 @@ class World:
     """A town, a driver's car on a route, traffic around it, right-of-way and event counters."""
 
     BOX_PAVING = 0.75  # m of paving beyond the connector lanes' edges inside a junction box
-    # A car following the navigated one (world v2): on town streets someone is often right behind you.
+    # A car following the navigated one: on town streets someone is often right behind you.
     # Chance per second that one joins when none follows; its time headway (urban car following: a large
     # share of headways below 1 s, Vogel 2003, Accid. Anal. Prev. 35) and its perception-reaction delay to
     # the braking of the car ahead (expected ~0.75 s, unexpected ~1.25 s, surprise ~1.5 s and longer when
@@ -94,7 +94,7 @@ class World:
         self.dt = 1.0 / frequency
         self.time = 0.0
         self.events = Events()
-        self.row = RightOfWay(town)
+        self.right_of_way = RightOfWay(town)
         self.ego = DriverCar(self, driver, route.lanes[0], route.start_s)
         self.ego.speed = 0.0
         self.road.vehicles.append(self.ego)
@@ -124,8 +124,8 @@ class World:
         driver's contacts) re-keyed to the copied cars, and, with ``seed``, fresh random streams so the
         copy does not know the original's future draws (mishearing, compliance, guesses, traffic)."""
         new_id = {old: id(new) for old, new in memo.items() if isinstance(new, Vehicle)}
-        for jid, holders in self.row.holders.items():
-            self.row.holders[jid] = {new_id.get(k, k): arm for k, arm in holders.items()}
+        for jid, holders in self.right_of_way.holders.items():
+            self.right_of_way.holders[jid] = {new_id.get(k, k): arm for k, arm in holders.items()}
         self.ego.in_contact = {new_id.get(k, k) for k in self.ego.in_contact}
         if seed is not None:
             self.rng = np.random.default_rng([seed, 10])
@@ -252,12 +252,12 @@ class World:
                 arm = prev[1].split(":i")[1]
                 if j.kind == "roundabout":
                     entry_len = town.lane(lane).length
-                    if not self.row.ring_clear(car, jid, arm):
+                    if not self.right_of_way.ring_clear(car, jid, arm):
                         return max(d + entry_len - 3.0, 0.1)
                     return None
                 if not j.is_decision:
                     return None
-                if not self.row.may_enter_cross(car, jid, arm):
+                if not self.right_of_way.may_enter_cross(car, jid, arm):
                     return max(d - 1.0, 0.1)
                 return None
             d += town.lane(lane).length
@@ -266,8 +266,8 @@ class World:
     # ----- simulation -------------------------------------------------------------------------
     def frame(self) -> None:
         """One simulation frame: decisions, dynamics, collisions and curb strikes."""
-        self.row.world_cars = self.cars
-        self.row.release_stale(self.cars)
+        self.right_of_way.world_cars = self.cars
+        self.right_of_way.release_stale(self.cars)
         for car in self.cars:
             car.act()
         for car in self.cars:

@@ -1,4 +1,4 @@
-"""World v2's mechanisms (issue #31): per-prompt reaction times, the following car, gap acceptance."""
+"""The world's timing mechanisms: per-prompt reaction times, the following car, gap acceptance."""
 
 import math
 
@@ -28,7 +28,7 @@ def test_reaction_draws_have_the_drivers_mean_and_spread():
 
 
 def test_explore_timing_is_unchanged_and_the_oracle_covers_a_slow_drivers_spread():
-    assert explore_policy().margin == 0.8  # 1.65 x 0.444 s < 0.8 s: world v1's slack
+    assert explore_policy().margin == 0.8  # explore's slack for the average driver
     slow = resolve(named_user("user3"), Context(visual="foggy"))
     assert math.isclose(oracle_policy(slow).margin, 1.65 * slow.reaction_sd)
     assert oracle_policy(slow).turn_lead(10.0) > explore_policy().turn_lead(10.0)
