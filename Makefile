@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= runs/default
 
-.PHONY: setup study test lint clean
+.PHONY: setup study test test-fast lint clean
 
 setup: $(STAMP)
 
@@ -21,8 +21,13 @@ $(STAMP): pyproject.toml
 study: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/pernav study --preset default --out $(OUT) --workers 2 --resume
 
+# every test and every module's doctests (about 6 minutes on 2 cores)
 test: $(STAMP)
-	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 tests
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --doctest-modules tests pernav
+
+# the inner loop: everything but the tests marked slow (under 90 s on 2 cores)
+test-fast: $(STAMP)
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 -m "not slow" --doctest-modules tests pernav
 
 lint: $(STAMP)
 	$(BIN)/ruff check pernav recipes tests
