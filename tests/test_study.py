@@ -226,33 +226,6 @@ def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_on
         assert not (tmp_path / "s").exists()
 
 
-def test_an_episode_job_overrides_the_study_planner_options():
-    from pernav.model import DynamicsModel
-    from pernav.study.parallel import EpisodeJob, make_policy
-
-    cfg = _smoke(["Town1"])
-    cfg.planner = {"kind": "retime", "rescue": 8.0}
-    model = DynamicsModel(K=cfg.train.K, hidden=(8,))
-    spec = {"config": model.config(), "state": model.state_dict()}
-    job = EpisodeJob(cfg, "Town1", cfg.schedule[1], 0, 0, "mpc", 7, spec)
-    assert make_policy(job).rescue == 8.0
-    assert make_policy(EpisodeJob(cfg, "Town1", cfg.schedule[1], 0, 0, "mpc", 7, spec,
-                                  planner_options={"rescue": None})).rescue is None
-
-
-@pytest.mark.slow
-def test_a_study_with_rescues_checks_them_on_each_rounds_tau(two_workers, tmp_path):
-    cfg = _smoke(["Town1"])
-    cfg.methods, cfg.planner = ["explore", "adapt"], {"kind": "retime", "rescue": 8.0}
-    results = run_study(cfg, tmp_path / "study")
-    checks = results["diagnostics"]["Town1"]["adapt"]["rescue_checks"]
-    assert set(checks) == {"Online 0", "Online 8"}
-    for c in checks.values():
-        assert c["hits"] + c["false_alarms"] == c["alarms"] and c["hits"] <= c["real"]
-        assert c["threshold"] >= 8.0 and c["allowed"] == (c["hits_at_threshold"] > 0)
-    assert "rescue_checks" not in json.dumps(two_workers[1]["diagnostics"])  # no rescue, no checks
-
-
 @pytest.mark.slow
 def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, capsys):
     import torch

@@ -172,8 +172,7 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
 
 
 def _in_model_space(trajectory: TensorDictBase, n_actions: int) -> TensorDictBase:
-    """A drive in the model's action space: a 7-action drive (explore) re-encoded for a 21-action model, with the
-    planning context the rescue check reads (as the study's runner does)."""
+    """A drive in the model's action space: a 7-action drive (explore) re-encoded for a 21-action model."""
     drive_actions = trajectory["history"].shape[-1] - trajectory["observation"].shape[-1]  # one-hot width
     if n_actions != 21 or drive_actions == 21:
         return trajectory
@@ -218,29 +217,17 @@ class StudyPolicy:
 
     __name__ = "study"
 
-    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None,
-                 tau: TensorDictBase | None = None) -> None:
+    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None) -> None:
         model = DynamicsModel(**study.model_config)
         model.load_state_dict(study.members[0])
         self.study = study
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), study.planner, study.n_actions)
-        self.rescue = getattr(self.planner, "rescue", None)  # the study's rescue distance (None: no rescue)
         self.env_config, self.K, self.n_actions = study.env_config(), study.K, study.n_actions
-        self.set_parameters(params, tau)
+        self.set_parameters(params)
 
-    def set_parameters(self, params: list[TensorDictBase] | None, tau: TensorDictBase | None = None) -> None:
-        """Plan with ``params`` (every member's; ``None``: the first member's own weights). A planner with a
-        rescue distance rescues only where its alarm on this person's ``tau`` proves right, at the distance that
-        check gives, as in the study's rounds (``runner._rescue_check``); without a tau, not at all."""
+    def set_parameters(self, params: list[TensorDictBase] | None) -> None:
+        """Plan with ``params`` (every member's; ``None``: the first member's own weights)."""
         self.planner.params = params
-        if self.rescue is None or not getattr(self.planner, "rescue_evidence", False):
-            return
-        self.planner.rescue = self.rescue  # the check starts from the study's distance
-        if tau is None:
-            self.planner.rescue = None
-            return
-        counts = self.planner.alarm_check(_in_model_space(tau, self.n_actions))
-        self.planner.rescue = counts["threshold"] if counts["hits_at_threshold"] > 0 else None
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         return self.planner(td)
@@ -260,13 +247,12 @@ def study_policy(study_dir: str | Path, town: str, tau_trajectories: TensorDictB
         [tau_trajectories] if isinstance(tau_trajectories, TensorDictBase) else list(tau_trajectories))
     trainer = study.trainer(seed=seed)
     params = adapted_parameters(study, trainer, drives, seed)
-    policy = StudyPolicy(study, params, drives[-1] if drives else None)
+    policy = StudyPolicy(study, params)
     info = {"study": str(study.folder), "town": town, "learner": learner, "members": len(study.members),
             "adapted": bool(drives) and study.meta,
             "adaptation": ("personal_updates" if study.train.personal_updates else "U") if drives and study.meta else None,
             "tau_steps": [int(d.shape[0]) for d in drives], "planner": {"kind": "retime", **study.planner},
-            "env_config": dict(policy.env_config), "K": policy.K,
-            "rescue": getattr(policy.planner, "rescue", None)}
+            "env_config": dict(policy.env_config), "K": policy.K}
     return policy, info
 
 
@@ -484,7 +470,7 @@ class PersonalSession:
             self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
         self.params = adapted_parameters(self.study, self.trainer, [tau],
                                          derive_seed(self.seed, self.town, "personal", round_))
-        self.policy.set_parameters(self.params, tau)
+        self.policy.set_parameters(self.params)
         self.adapted_on = round_
         self.learned.append(round_)
         self._save_model()
@@ -550,7 +536,7 @@ class PersonalSession:
             last = learned[-1]
             self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],
                                              derive_seed(self.seed, self.town, "personal", last))
-            self.policy.set_parameters(self.params, self._whole_trajectory(last, "explore"))
+            self.policy.set_parameters(self.params)
             self.adapted_on = last
         self.learned = learned
         if len(self.learned) == len(self.routes) and all(self._whole(r, label) for r, _, _, label, _ in self._slots()):

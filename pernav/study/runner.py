@@ -114,22 +114,6 @@ def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
     return RetimedExplore(seed=derive_seed(seed, "tau")) if cfg.tau == "retimed" else explore_module()
 
 
-def _rescue_check(learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
-    """Whether and at what distance ``learner``'s planner may rescue in this round (``None``: the planner has no
-    rescue, or needs no evidence). On the round's tau, with the round's parameters, the alarm's distance is
-    raised until it is silent wherever the real car kept to the route; rescues are allowed at that distance if
-    the alarm still sounds where the car left it (:meth:`~pernav.planner.RetimingPlanner.alarm_check`)."""
-    planner = learner.planner
-    if getattr(planner, "rescue", None) is None or not planner.rescue_evidence:
-        return None
-    if learner.n_actions == 21:  # tau's actions are instructions: in the 21-action space
-        tau = to_speed_actions(tau).update({"route_ahead": tau["route_ahead"], "explore_future": tau["explore_future"],
-                                            "action_mask": tau["action_mask"].repeat_interleave(3, -1)})
-    planner.params = params
-    counts = planner.alarm_check(tau)
-    return {**counts, "allowed": counts["hits_at_threshold"] > 0}
-
-
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
@@ -382,14 +366,8 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
         if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
             adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
             state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
-        checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
-    for name, check in checks.items():
-        if check is not None:
-            state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
-    off = {name: {"rescue": c["threshold"] if c["allowed"] else None}  # this round's rescue distance
-           for name, c in checks.items() if c is not None}
-    _evaluate(run, entry, learners, adapted, off, record)
-    _rollouts(run, entry, index, rng, adapted, off)
+    _evaluate(run, entry, learners, adapted, record)
+    _rollouts(run, entry, index, rng, adapted)
     # the online loss of adapt before the update (for the model-loss regret)
     if "adapt" in learners:
         _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
@@ -397,11 +375,11 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
 
 
 def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: dict[str, Any],
-              off: dict[str, dict[str, Any]], record: dict[str, Any]) -> None:
+              record: dict[str, Any]) -> None:
     """Every method on the round's evaluation routes, on the same episode seeds, into ``record``."""
     methods = [m for m in run.cfg.methods if m != "hindsight"]
     jobs = [EpisodeJob(run.cfg, run.town, entry, route, run.seed(entry.label, "eval", route),
-                       *_policy_spec(method, learners, adapted), planner_options=off.get(method))
+                       *_policy_spec(method, learners, adapted))
             for method in methods for route in range(run.cfg.routes)]
     with _Timer(run.profile, "evaluation_s"):
         metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} episodes")
@@ -411,17 +389,13 @@ def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: d
                                                 if j.policy_name == method])
 
 
-def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted: dict[str, Any],
-              off: dict[str, dict[str, Any]]) -> None:
+def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted: dict[str, Any]) -> None:
     """Data collection: ``rollouts`` drives per learner, its MPC w.p. 1/2 else explore, into its own D_t."""
     cfg, learners = run.cfg, run.learners
     with _Timer(run.profile, "collection_s"):
         planning_before = sum(learner.planner.planning_s for learner in learners.values())
         for name, learner in learners.items():
             learner.planner.params = adapted[name]
-            rescue = getattr(learner.planner, "rescue", None)
-            if name in off:  # the rollouts rescue as this round's evaluation does
-                learner.planner.rescue = off[name]["rescue"]
             for k in range(cfg.rollouts):
                 use_mpc = rng.random() < 0.5
                 route = rng.randrange(10)
@@ -429,17 +403,13 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
                 policy = learner.planner if use_mpc else _collector(cfg, seed)
                 traj = episode(cfg, run.town, entry, route, seed, policy, learner.n_actions)
                 learner.buffers.add(index, traj)  # already in the learner's action space
-            if name in off:
-                learner.planner.rescue = rescue
     run.profile["collection_planning_s"] = run.profile.get("collection_planning_s", 0.0) + sum(
         learner.planner.planning_s for learner in learners.values()) - planning_before
 
 
 def _town_result(run: _Town) -> dict[str, Any]:
     state = run.state
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
-                          **({"rescue_checks": state["rescue_checks"][name]} if name in state.get("rescue_checks", {})
-                             else {})}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
                    for name, learner in run.learners.items()}
     if "timing_beliefs" in state:
         diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
@@ -555,11 +525,8 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
     params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
               for index, entry in online}
-    # rescues need a round-time check on tau (_rescue_check), which hindsight, trained after the last round, has not
-    evidence = hind.planner.rescue_evidence if getattr(hind.planner, "rescue", None) is not None else False
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight",
-                       planner_options={"rescue": None} if evidence else None)
+                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online if not entry.drives for route in routes]  # recorded rounds: no episodes
     with _Timer(state["profile"], "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
