@@ -192,7 +192,7 @@ def test_trainers_loaded_from_one_state_share_no_tensors():
     assert all(torch.equal(p, q) for p, q in zip(params, a.model.parameters(), strict=True))
 
 
-def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step(tmp_path, capsys):
+def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_one(tmp_path, capsys):
     from pernav.study import PresetError
 
     cfg = preset("smoke")
@@ -201,8 +201,10 @@ def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step
         cfg.validate()
     cfg.train.backtrack = None  # the paper's fixed step
     cfg.validate()
-    with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
-        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--adapt-step", "huge"])
+    assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--train-option", "backtrack=1.5"]) == 2
+    assert "train.backtrack must be in (0, 1)" in capsys.readouterr().err and not (tmp_path / "s").exists()
+    with pytest.raises(SystemExit) as exit_:  # the flags that repeated --train-option are gone (argparse's error)
+        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--adapt-step", "fixed"])
     assert exit_.value.code == 2 and "--adapt-step" in capsys.readouterr().err and not (tmp_path / "s").exists()
 
 
@@ -219,7 +221,7 @@ def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_on
         assert words in err and bad in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "s").exists()
     for extra, words in ((["--train-option", "personal_replay=1.5"], "train.personal_replay must be in [0, 1)"),
-                         (["--train-option", "personal_replay=0.5", "--personal-updates", "0"],
+                         (["--train-option", "personal_replay=0.5", "--train-option", "personal_updates=0"],
                           "needs train.personal_updates > 0")):
         assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), *extra]) == 2
         assert words in capsys.readouterr().err
