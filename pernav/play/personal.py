@@ -1,9 +1,10 @@
 """A study's navigation personalized to a person: the adapted-model policy and Algorithm 1 with a person in the loop.
 
-:func:`study_policy` loads a finished study's meta model ensemble for a town (:func:`pernav.study.runner.final_models`),
-adapts every member to a person on their drive tau exactly as the study adapts to a round's user at test time (``U``:
-one gradient step of ``alpha`` on tau's L-step loss, backtracked and clipped as the study's ``TrainConfig`` says; or
-``personal_updates`` maximum-likelihood updates where the study used them) and returns the study's own planner (its
+:func:`study_policy` loads a finished study's meta model ensemble for a town
+(:func:`pernav.study.checkpoints.final_models`), adapts every member to a person on their drive tau exactly as the
+study adapts to a round's user at test time (``U``: one gradient step of ``alpha`` on tau's L-step loss, backtracked
+and clipped as the study's ``TrainConfig`` says; or ``personal_updates`` maximum-likelihood updates where the study
+used them) and returns the study's own planner (its
 ``planner`` options, ``retime`` by default) on :class:`~pernav.model.navigation.ImaginedNavigationEnv` planning with
 those parameters: a :class:`StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession` policy, that also
 carries the env settings the study planned on (history ``K``, planning context lengths), which the session takes.
@@ -53,6 +54,7 @@ from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlayResult, PlaySession
+from pernav.study.checkpoints import final_models
 from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
@@ -153,8 +155,6 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
     ...
     pernav.play.loop.PlayError: no study folder '/nonexistent'
     """
-    from pernav.study.runner import final_models
-
     folder = Path(study_dir)
     config = study_settings(folder, town)
     methods = list(config.get("methods") or [])

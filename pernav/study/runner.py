@@ -17,8 +17,8 @@ into every learner's round data as simulated drives do (the first is the round's
 online, the round is a round of data: adapt's losses on it are recorded and the learners update, but no method
 is evaluated (nobody can re-drive the person for every method) and no rollouts are collected.
 
-A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically
-(a new folder, then a manifest with checksums replaced in one ``os.replace``).
+A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically (a new folder,
+then a manifest with checksums replaced in one ``os.replace``; :mod:`pernav.study.checkpoints`).
 
 Every random choice is derived from (seed, town, entry, purpose), and torch runs on one thread in a town
 job, so a town's results do not depend on which process or worker runs it.
@@ -27,12 +27,8 @@ job, so a town's results do not depend on which process or worker runs it.
 from __future__ import annotations
 
 import copy
-import hashlib
-import json
 import logging
-import os
 import random
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +44,7 @@ from pernav.model.timing import TARGETS as TIMING_TARGETS
 from pernav.model.timing import TimingModel, timing_features
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
+from pernav.study.checkpoints import final_models, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
@@ -58,7 +55,7 @@ from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.world.drivers import Population, resolve
 
-__all__ = ["CheckpointError", "final_models", "run_town"]
+__all__ = ["CheckpointError", "final_models", "run_town"]  # final_models: from pernav.study.checkpoints
 
 log = logging.getLogger("pernav.study")
 
@@ -170,78 +167,6 @@ class _Timer:
 
     def __exit__(self, *exc: Any) -> None:
         self.profile[self.key] = self.profile.get(self.key, 0.0) + time.perf_counter() - self.t0
-
-
-# ----- checkpoints ------------------------------------------------------------------------------------
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: dict[str, Learner]) -> None:
-    """Write ``folder/entry_{index}`` then atomically point ``folder/manifest.json`` at it."""
-    folder.mkdir(parents=True, exist_ok=True)
-    final = folder / f"entry_{index:03d}"
-    tmp = folder / f".tmp_entry_{index:03d}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    torch.save({"state": state, "learners": {k: v.state() for k, v in learners.items()}}, tmp / "state.pt")
-    for name, learner in learners.items():
-        learner.buffers.save(tmp / f"buffers_{name}")
-    files = {str(p.relative_to(tmp)): _sha256(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
-    shutil.rmtree(final, ignore_errors=True)
-    os.replace(tmp, final)
-    manifest = {"index": index, "folder": final.name, "files": files}
-    tmp_manifest = folder / ".manifest.json.tmp"
-    tmp_manifest.write_text(json.dumps(manifest))
-    os.replace(tmp_manifest, folder / "manifest.json")
-    for old in folder.glob("entry_*"):  # keep only the checkpoint the manifest points at
-        if old.name != final.name:
-            shutil.rmtree(old, ignore_errors=True)
-
-
-def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[DynamicsModel, list[dict]]:
-    """A finished study's last checkpointed ensemble of ``learner`` in ``town``: a module of its
-    architecture and every member's state dict (load one with ``model.load_state_dict``).
-
-    >>> model, members = final_models("runs/default", "Town1")  # doctest: +SKIP
-    """
-    manifest = Path(study) / "checkpoints" / town / "manifest.json"
-    if not manifest.is_file():
-        raise CheckpointError(f"no {town} checkpoint in {str(study)!r} (run the study first)")
-    data = torch.load(manifest.parent / json.loads(manifest.read_text())["folder"] / "state.pt", weights_only=False)
-    if learner not in data["learners"]:
-        raise CheckpointError(f"learner {learner!r} not in the checkpoint; it has {', '.join(data['learners'])}")
-    members = data["learners"][learner]["members"]
-    return DynamicsModel(**members[0]["model_config"]), [m["model"] for m in members]
-
-
-def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any] | None:
-    """Restore learners from the manifest's checkpoint; ``None`` when there is none. Verifies checksums."""
-    manifest_path = folder / "manifest.json"
-    if not manifest_path.exists():
-        return None
-    try:
-        manifest = json.loads(manifest_path.read_text())
-        ckpt = folder / manifest["folder"]
-        files = manifest["files"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise CheckpointError(f"checkpoint manifest {str(manifest_path)!r} is corrupted ({exc})") from None
-    for rel, digest in files.items():
-        path = ckpt / rel
-        if not path.is_file():
-            raise CheckpointError(f"checkpoint file {str(path)!r} is missing")
-        if _sha256(path) != digest:
-            raise CheckpointError(f"checkpoint file {str(path)!r} is corrupted (checksum mismatch)")
-    data = torch.load(ckpt / "state.pt", weights_only=False)
-    for name, learner in learners.items():
-        learner.trainer.load_state_dict(data["learners"][name])
-        loaded = RoundBuffers.load(ckpt / f"buffers_{name}")
-        learner.buffers.__dict__.update(loaded.__dict__)
-    return data["state"]
 
 
 # ----- the town job -----------------------------------------------------------------------------------

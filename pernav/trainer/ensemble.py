@@ -80,7 +80,7 @@ class EnsembleTrainer:
                     buffers: RoundBuffers | None = None, seed: int = 0,
                     loss_fn: LossFn | None = None) -> EnsembleTrainer:
         """An ensemble of ``DynamicsModel(**config)`` members starting from ``states`` (their state dicts,
-        normalization included), e.g. a finished study's (:func:`pernav.study.runner.final_models`)."""
+        normalization included), e.g. a finished study's (:func:`pernav.study.checkpoints.final_models`)."""
         out = cls(lambda: DynamicsModel(**config), buffers if buffers is not None else RoundBuffers(L=train.L),
                   train, size=len(states), seed=seed, loss_fn=loss_fn)
         for member, state in zip(out.members, states, strict=True):
