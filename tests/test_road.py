@@ -209,6 +209,15 @@ def test_speed_actions_keep_the_road_and_a_beam_needs_a_model_without_it(drive):
         TreeSearchPlanner(env, beam=64)
 
 
+def test_a_drive_goes_into_a_models_action_space_once(drive):
+    from pernav.trainer.collect import in_action_space, to_speed_actions
+
+    wide = in_action_space(drive, 21)  # the study's learners and a person's session re-encode by this one rule
+    assert torch.equal(wide["history"], to_speed_actions(drive)["history"])
+    assert torch.equal(wide["action"].reshape(-1), drive["action"].long().reshape(-1) * 3 + 1)
+    assert in_action_space(wide, 21) is wide and in_action_space(drive, 7) is drive  # already there: as it is
+
+
 def test_a_study_refuses_the_road_with_the_paper_planners_beam_before_writing_anything(tmp_path, capsys):
     from pernav.cli import main
 

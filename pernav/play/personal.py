@@ -48,7 +48,6 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
@@ -58,7 +57,7 @@ from pernav.study.checkpoints import final_models
 from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.collect import derive_seed, to_speed_actions
+from pernav.trainer.collect import derive_seed, in_action_space
 from pernav.trainer.drives import atomic_write, load_drive, save_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig
@@ -171,42 +170,25 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
                       model.config(), members, config)
 
 
-def _in_model_space(trajectory: TensorDictBase, n_actions: int) -> TensorDictBase:
-    """A drive in the model's action space: a 7-action drive (explore) re-encoded for a 21-action model."""
-    drive_actions = trajectory["history"].shape[-1] - trajectory["observation"].shape[-1]  # one-hot width
-    if n_actions != 21 or drive_actions == 21:
-        return trajectory
-    out = to_speed_actions(trajectory)
-    for key in ("route_ahead", "explore_future"):
-        if key in trajectory.keys():
-            out[key] = trajectory[key]
-    if "action_mask" in trajectory.keys():
-        out["action_mask"] = trajectory["action_mask"].repeat_interleave(3, -1)
-    return out
-
-
 def adapted_parameters(study: StudyModel, trainer: EnsembleTrainer, drives: Sequence[TensorDictBase],
                        seed: int = 0) -> list[TensorDictBase]:
     """Every member's parameters for planning with a person whose latest drives are ``drives`` (the last one is
-    their tau), by the study's own test-time rule (``runner.Learner.adapted``): ``U(P, tau)`` with the study's
-    ``alpha``, ``L``, ``backtrack`` and ``max_grad_norm``; or, where the study adapted by ``personal_updates``,
-    that many updates on the drives. No drives (or ``sysid``): the meta parameters themselves.
+    their tau), by the study's own test-time rule (:meth:`~pernav.trainer.EnsembleTrainer.adapted_parameters`):
+    ``U(P, tau)``, or ``personal_updates`` updates on the drives. No drives (or ``sysid``): the meta parameters.
 
     >>> study = load_study("runs/smoke", "Town1")                                      # doctest: +SKIP
     >>> len(adapted_parameters(study, study.trainer(), [tau])) == study.train.ensemble  # doctest: +SKIP
     True
     """
     if not drives or not study.meta:
-        return [meta_parameters(m.model).detach().clone() for m in trainer.members]
+        return trainer.adapted_parameters(None, meta=False)
     for d in drives:
         if d["history"].shape[-2] != study.K:
             raise PlayError(f"a drive with a history of {d['history'].shape[-2]} steps: the study's model reads "
                             f"{study.K} (record it with this study's policy or session, or pernav play --history "
                             f"{study.K})")
-    drives = [_in_model_space(d, study.n_actions) for d in drives]
-    if study.train.personal_updates:
-        return trainer.fine_tuned(list(drives), study.train.personal_updates, seed, replay=study.train.personal_replay)
-    return trainer.parameters(drives[-1], adapted=True, alpha=study.train.alpha)
+    drives = [in_action_space(d, study.n_actions) for d in drives]
+    return trainer.adapted_parameters(drives[-1], drives, seed=seed)
 
 
 class StudyPolicy:
@@ -463,9 +445,9 @@ class PersonalSession:
 
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # no note of every round's new storage
         # a round's data in the learner's action space (explore's 7 actions re-encoded for adapt_speed's 21)
-        self.buffers.add(round_, _in_model_space(tau, self.study.n_actions), tau=True)
+        self.buffers.add(round_, in_action_space(tau, self.study.n_actions), tau=True)
         if other is not None:
-            self.buffers.add(round_, _in_model_space(other, self.study.n_actions))
+            self.buffers.add(round_, in_action_space(other, self.study.n_actions))
         for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
             self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
         self.params = adapted_parameters(self.study, self.trainer, [tau],
@@ -529,9 +511,9 @@ class PersonalSession:
             self.meta_losses = list(state["meta_losses"])
             for r in learned:
                 tau, other = self._whole_trajectory(r, "explore"), self._whole_trajectory(r, "adapted")
-                self.buffers.add(r, _in_model_space(tau, self.study.n_actions), tau=True)
+                self.buffers.add(r, in_action_space(tau, self.study.n_actions), tau=True)
                 if other is not None:
-                    self.buffers.add(r, _in_model_space(other, self.study.n_actions))
+                    self.buffers.add(r, in_action_space(other, self.study.n_actions))
             self.buffers.generator.set_state(state["buffers_generator"])
             last = learned[-1]
             self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],

@@ -50,7 +50,7 @@ from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
+from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
 from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.world.drivers import Population, resolve
@@ -78,18 +78,15 @@ class Learner:
 
     def adapted(self, round_: int, cfg: StudyConfig, seed: int = 0) -> Any:
         """The parameters the planner uses in round ``round_``: every member's, adapted to the round's user for
-        meta learners (``U`` on tau, or ``personal_updates`` updates on the user's drives); ``None`` (the
-        model's own) for a single sysid model."""
+        meta learners (:meth:`~pernav.trainer.EnsembleTrainer.adapted_parameters` on tau and the calibration
+        drives); ``None`` (the model's own) for a single sysid model."""
         if not self.meta and cfg.train.ensemble == 1:
             return None
-        if self.meta and cfg.train.personal_updates:
-            return self.trainer.fine_tuned(self.buffers.user_trajectories(round_), cfg.train.personal_updates, seed,
-                                           replay=cfg.train.personal_replay)
-        return self.trainer.parameters(self.buffers.tau(round_), adapted=self.meta, alpha=cfg.train.alpha)
+        return self.trainer.adapted_parameters(self.buffers.tau(round_), self.buffers.user_trajectories(round_),
+                                               self.meta, seed)
 
     def add(self, round_: int, trajectory: Any, tau: bool = False, calibration: bool = False) -> None:
-        data = to_speed_actions(trajectory) if self.n_actions == 21 else trajectory
-        self.buffers.add(round_, data, tau=tau, calibration=calibration)
+        self.buffers.add(round_, in_action_space(trajectory, self.n_actions), tau=tau, calibration=calibration)
 
     def state(self) -> dict[str, Any]:
         return self.trainer.state_dict()
