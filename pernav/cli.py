@@ -444,8 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one of the planner's options (pernav.planner.factory.PLANNER_DEFAULTS; VALUE in JSON, e.g. "
                         "max_spread=null); repeatable")
     p.add_argument("--train-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150); "
-                        "repeatable")
+                   help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150, "
+                        "personal_updates=100, or backtrack=null for the paper's fixed adaptation step); repeatable")
     p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
                    help="one of the timing learner's options (offline_drivers, l2, quantile, gate; VALUE a number); "
                         "repeatable")
@@ -458,11 +458,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
     p.add_argument("--calibration", type=int, metavar="N",
                    help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
-    p.add_argument("--personal-updates", type=int, metavar="N",
-                   help="adapt by N updates on the round user's drives instead of one step on tau (0: the paper's U)")
-    p.add_argument("--adapt-step", choices=["backtrack", "fixed"],
-                   help="test-time U's step: backtrack (default: halve alpha until tau's loss decreases enough) or "
-                        "fixed (the paper's alpha)")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -483,7 +478,6 @@ def _study(args: argparse.Namespace) -> None:
     import logging
 
     from pernav.study import load_schedule, preset, run_study
-    from pernav.trainer.ftml import TrainConfig
 
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     if args.workers < 1:
@@ -521,10 +515,6 @@ def _study(args: argparse.Namespace) -> None:
         cfg.train = cfg.train.with_options(args.train_option)
     except ValueError as exc:
         raise UsageError(f"--train-option {exc}") from None
-    if args.personal_updates is not None:
-        cfg.train.personal_updates = args.personal_updates
-    if args.adapt_step is not None:
-        cfg.train.backtrack = None if args.adapt_step == "fixed" else TrainConfig().backtrack
     results = run_study(cfg, args.out, resume=args.resume, workers=args.workers, ray=args.ray is not None,
                         ray_address=args.ray or None)
     from pernav.study.report import collision_table

@@ -80,10 +80,17 @@ def scatter(episodes: list[dict], path: str) -> None:
     plt.close(fig)
 
 
+# options the retime planner had once and dropped (measured, not used), at the values that left them off
+_REMOVED = {"rescue": None, "rescue_evidence": True, "route_goals": False}
+
+
 def _same_defaults(recorded: dict | None, current: dict) -> bool:
-    """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written (``rescue``,
-    ``rescue_evidence``, ``route_goals``) is off by default, so a file without it drove as the current defaults do."""
-    return recorded is not None and {**current, **recorded} == current
+    """Were ``recorded`` defaults the ``current`` ones? An option added after the file was written is off by
+    default, so a file without it drove as the current defaults do; a removed option recorded off did nothing."""
+    if recorded is None:
+        return False
+    kept = {k: v for k, v in recorded.items() if k not in _REMOVED or v != _REMOVED[k]}
+    return {**current, **kept} == current
 
 
 def main() -> None:

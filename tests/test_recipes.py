@@ -47,6 +47,9 @@ def test_planning_error_counts_an_option_added_later_as_off_in_files_written_bef
     assert same(before, current) and same(current, current)
     assert not same({**before, "delay": current["delay"] + 3}, current) and not same(None, current)
     assert not same({**current, added: "something else"}, current)
+    # the options removed since, recorded off (as docs/figures/planning_error.json has them), drove as today
+    assert same({**current, "rescue": None, "rescue_evidence": True, "route_goals": False}, current)
+    assert not same({**current, "rescue": 8.0}, current)
 
 
 def _study_results(seed: int, costs: dict[str, list[float]]) -> dict:

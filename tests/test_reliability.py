@@ -74,12 +74,12 @@ def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path, capsys):
     data[len(data) // 2] ^= 0xFF
     state.write_bytes(bytes(data))
     before = (out / "results.json").read_text()
-    from pernav.study import runner
+    from pernav.study import checkpoints
 
     cfg_json = json.loads((out / "study.json").read_text())
     assert cfg_json["methods"] == ["explore", "adapt"]
-    with pytest.raises(runner.CheckpointError, match="state.pt"):
-        runner.load_checkpoint(out / "checkpoints" / "Town1", {})
+    with pytest.raises(checkpoints.CheckpointError, match="state.pt"):
+        checkpoints.load_checkpoint(out / "checkpoints" / "Town1", {})
     # through the CLI: one line naming the file, exit code 2, results untouched
     argv = ["study", "--preset", "smoke", "--out", str(out), "--resume"]
     capsys.readouterr()  # drop the first run's progress bars

@@ -14,7 +14,7 @@ from pernav.model import DynamicsModel
 from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import ROAD_MAX, road_points
 from pernav.model.losses import multistep_loss, single_step_loss
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model, route_goal
+from pernav.model.navigation import ROUTE_REACH, ImaginedNavigationEnv, make_world_model, route_index
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.ftml import TrainConfig
 
@@ -151,14 +151,14 @@ def test_imagination_gives_the_road_at_each_imagined_cars_projection(drive):
     root = drive[10]
     seqs = torch.randint(7, (3, 6))
     pos, _ = env.imagine(root, seqs)
-    # brute force: one sequence at a time, tracking the projection as route_goal does
+    # brute force: one sequence at a time, tracking the car's projection on the route
     route = root["route_ahead"]
     for n in range(3):
         hist = root["history"].clone()
         index = torch.cdist(hist[-1, :2].unsqueeze(0), route).argmin()
         for h in range(6):
             state = model(hist, seqs[n, h], road_points(route, 5, index))
-            _, index = route_goal(state, route, index)
+            index = route_index(state, route, index)
             hist = model.next_window(hist, seqs[n, h], state)
             torch.testing.assert_close(pos[0, n, h], state[:2], rtol=1e-5, atol=1e-4)
 
@@ -185,15 +185,13 @@ def test_adapting_on_a_raw_drive_reads_its_route_and_the_paper_planner_plans_wit
         planner(drive[12].exclude("route_ahead"))
 
 
-def test_route_goals_projection_is_the_nearest_point_near_the_previous_one():
-    from pernav.model.world_model import ROUTE_REACH
-
+def test_the_route_projection_is_the_nearest_point_near_the_previous_one():
     g = torch.Generator().manual_seed(0)
     route = torch.cumsum(torch.randn(40, 2, generator=g) * 3, 0)
     state = torch.zeros(200, 14)
     state[:, :2] = route[torch.randint(40, (200,), generator=g)] + torch.randn(200, 2, generator=g) * 4
     index = torch.randint(40, (200,), generator=g)
-    _, new = route_goal(state, route, index)
+    new = route_index(state, route, index)
     d = torch.cdist(state[:, :2], route)  # brute force: every point, masked to the reachable ones
     k = torch.arange(40)
     reach = (k >= index.unsqueeze(-1) - 2) & (k <= index.unsqueeze(-1) + ROUTE_REACH)
@@ -209,6 +207,15 @@ def test_speed_actions_keep_the_road_and_a_beam_needs_a_model_without_it(drive):
     env = ImaginedNavigationEnv(make_world_model(DynamicsModel(n_actions=21, hidden=(8,), road=4)))
     with pytest.raises(ValueError, match="beam search needs a model without the road"):
         TreeSearchPlanner(env, beam=64)
+
+
+def test_a_drive_goes_into_a_models_action_space_once(drive):
+    from pernav.trainer.collect import in_action_space, to_speed_actions
+
+    wide = in_action_space(drive, 21)  # the study's learners and a person's session re-encode by this one rule
+    assert torch.equal(wide["history"], to_speed_actions(drive)["history"])
+    assert torch.equal(wide["action"].reshape(-1), drive["action"].long().reshape(-1) * 3 + 1)
+    assert in_action_space(wide, 21) is wide and in_action_space(drive, 7) is drive  # already there: as it is
 
 
 def test_a_study_refuses_the_road_with_the_paper_planners_beam_before_writing_anything(tmp_path, capsys):

@@ -192,7 +192,7 @@ def test_trainers_loaded_from_one_state_share_no_tensors():
     assert all(torch.equal(p, q) for p, q in zip(params, a.model.parameters(), strict=True))
 
 
-def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step(tmp_path, capsys):
+def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_one(tmp_path, capsys):
     from pernav.study import PresetError
 
     cfg = preset("smoke")
@@ -201,8 +201,10 @@ def test_backtrack_is_a_fraction_or_null_and_the_cli_exits_2_on_a_bad_adapt_step
         cfg.validate()
     cfg.train.backtrack = None  # the paper's fixed step
     cfg.validate()
-    with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
-        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--adapt-step", "huge"])
+    assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--train-option", "backtrack=1.5"]) == 2
+    assert "train.backtrack must be in (0, 1)" in capsys.readouterr().err and not (tmp_path / "s").exists()
+    with pytest.raises(SystemExit) as exit_:  # the flags that repeated --train-option are gone (argparse's error)
+        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--adapt-step", "fixed"])
     assert exit_.value.code == 2 and "--adapt-step" in capsys.readouterr().err and not (tmp_path / "s").exists()
 
 
@@ -219,38 +221,11 @@ def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_on
         assert words in err and bad in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
         assert not (tmp_path / "s").exists()
     for extra, words in ((["--train-option", "personal_replay=1.5"], "train.personal_replay must be in [0, 1)"),
-                         (["--train-option", "personal_replay=0.5", "--personal-updates", "0"],
+                         (["--train-option", "personal_replay=0.5", "--train-option", "personal_updates=0"],
                           "needs train.personal_updates > 0")):
         assert main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), *extra]) == 2
         assert words in capsys.readouterr().err
         assert not (tmp_path / "s").exists()
-
-
-def test_an_episode_job_overrides_the_study_planner_options():
-    from pernav.model import DynamicsModel
-    from pernav.study.parallel import EpisodeJob, make_policy
-
-    cfg = _smoke(["Town1"])
-    cfg.planner = {"kind": "retime", "rescue": 8.0}
-    model = DynamicsModel(K=cfg.train.K, hidden=(8,))
-    spec = {"config": model.config(), "state": model.state_dict()}
-    job = EpisodeJob(cfg, "Town1", cfg.schedule[1], 0, 0, "mpc", 7, spec)
-    assert make_policy(job).rescue == 8.0
-    assert make_policy(EpisodeJob(cfg, "Town1", cfg.schedule[1], 0, 0, "mpc", 7, spec,
-                                  planner_options={"rescue": None})).rescue is None
-
-
-@pytest.mark.slow
-def test_a_study_with_rescues_checks_them_on_each_rounds_tau(two_workers, tmp_path):
-    cfg = _smoke(["Town1"])
-    cfg.methods, cfg.planner = ["explore", "adapt"], {"kind": "retime", "rescue": 8.0}
-    results = run_study(cfg, tmp_path / "study")
-    checks = results["diagnostics"]["Town1"]["adapt"]["rescue_checks"]
-    assert set(checks) == {"Online 0", "Online 8"}
-    for c in checks.values():
-        assert c["hits"] + c["false_alarms"] == c["alarms"] and c["hits"] <= c["real"]
-        assert c["threshold"] >= 8.0 and c["allowed"] == (c["hits_at_threshold"] > 0)
-    assert "rescue_checks" not in json.dumps(two_workers[1]["diagnostics"])  # no rescue, no checks
 
 
 @pytest.mark.slow

@@ -80,14 +80,12 @@ class TrueDynamicsEnv(EnvBase):
         self._rng = np.random.default_rng(seed)
 
     # ----- what a planner calls -------------------------------------------------------------------
-    def imagine(self, root: Any, sequences: torch.Tensor, params: Any = None,
-                route_goals: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def imagine(self, root: Any, sequences: torch.Tensor, params: Any = None) -> tuple[torch.Tensor, torch.Tensor]:
         """Positions and goals ``[samples, N, H, 2]`` of action ``sequences`` ``[N, H]`` from the live env.
 
         Sequences sharing a prefix share its simulation (a copy is branched where they part, with the same
-        random state: common random numbers across candidates); ``root``, ``params`` and ``route_goals`` are
-        ignored (the root is the live env's state, the simulator has no parameters, and its goals are the
-        route's already)."""
+        random state: common random numbers across candidates); ``root`` and ``params`` are ignored (the root
+        is the live env's state, and the simulator has no parameters)."""
         N, H = sequences.shape
         pos = np.zeros((self.samples, N, H, 2), dtype=np.float32)
         goal = np.zeros_like(pos)

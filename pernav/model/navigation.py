@@ -31,16 +31,14 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
-from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import DynamicsModel
-from pernav.model.egocentric import GX, GY, VX, VY, EgocentricDifferences, X, Y, apply_delta, ego_delta, road_of, road_points
+from pernav.model.egocentric import GX, GY, EgocentricDifferences, X, Y, apply_delta, ego_delta, road_of, road_points
 from pernav.model.imagined import PlainWorldModel, model_device
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
-from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 
 __all__ = ["EgocentricDifferences", "ImaginedNavigationEnv", "apply_delta", "ego_delta", "make_world_model", "road_of",
-           "road_points", "route_goal", "route_index"]
+           "road_points", "route_index"]
 
 ROUTE_REACH = 8  # route points (3 m each) the car may advance in one imagined step; 2 back (no jumps)
 
@@ -58,35 +56,6 @@ def route_index(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) -
     near = (index.unsqueeze(-1) + torch.arange(-2, ROUTE_REACH + 1)).clamp(0, route.shape[0] - 1)  # ties go low
     d = (route[near] - state[..., None, [X, Y]]).norm(dim=-1)
     return near.gather(-1, d.argmin(-1, keepdim=True)).squeeze(-1)
-
-
-def route_goal(state: torch.Tensor, route: torch.Tensor, index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``state`` ``[..., 14]`` with its goal set as the env sets it, from the known route ``[P, 2]`` (points every
-    ``ROUTE_SPACING`` m): the route point ``max(speed * GOAL_LOOKAHEAD_S, WAYPOINT_SPACING)`` beyond the car's
-    projection on the route, searched near the previous projection ``index`` ``[...]``; and the new index.
-
-    >>> route = torch.stack([torch.arange(10.0) * 3, torch.zeros(10)], -1)  # a straight road along x
-    >>> state = torch.zeros(14); state[0], state[3] = 6.2, 6.0              # at x = 6.2 m, 6 m/s
-    >>> s, i = route_goal(state, route, torch.tensor(1))
-    >>> int(i), [round(float(v), 1) for v in s[[9, 10]]]
-    (2, [12.2, 0.0])
-    """
-    P = route.shape[0]
-    index = route_index(state, route, index)
-    # between the points: project on the route's local direction (the env projects on 2-m waypoints)
-    tangent = route[(index + 1).clamp(max=P - 1)] - route[(index - 1).clamp(min=0)]
-    tangent = tangent / tangent.norm(dim=-1, keepdim=True).clamp(min=1e-6)
-    along = ((state[..., [X, Y]] - route[index]) * tangent).sum(-1) / ROUTE_SPACING
-    speed = state[..., [VX, VY]].norm(dim=-1)
-    ahead = index.to(state.dtype) + along.clamp(-1.0, 1.0) \
-        + torch.clamp(speed * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING) / ROUTE_SPACING
-    ahead = ahead.clamp(min=0.0, max=P - 1)
-    lo = ahead.floor().long().clamp(max=P - 2)
-    w = (ahead - lo.to(state.dtype)).unsqueeze(-1)
-    goal = route[lo] * (1 - w) + route[lo + 1] * w
-    state = state.clone()
-    state[..., GX], state[..., GY] = goal[..., 0], goal[..., 1]
-    return state, index
 
 
 class _Transition(nn.Module):
@@ -140,15 +109,13 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         self.reward_spec = Unbounded((1,), dtype=dtype)
 
     @torch.no_grad()
-    def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list[TensorDictBase | None] | None = None,
-                route_goals: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list[TensorDictBase | None] | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
         """Imagined positions and goals of action ``sequences`` ``[N, H]`` from one real ``root`` (with
         ``"history"``): ``([M, N, H, 2], [M, N, H, 2])``, one row ``M`` per parameter set in ``params``
-        (an ensemble, adapted or not; ``None``: the model's own parameters). With ``route_goals`` every imagined
-        state's goal is the one the env would set from the known route (``root["route_ahead"]``,
-        :func:`route_goal`), not the model's guess: the navigation knows its map; the model learns the car and
-        the driver. A model that reads the road (``DynamicsModel(road=n)``) gets, at every imagined step, the
-        route points ahead of the imagined car's projection on the route (:func:`road_points`).
+        (an ensemble, adapted or not; ``None``: the model's own parameters). A model that reads the road
+        (``DynamicsModel(road=n)``) gets, at every imagined step, the route points ahead of the imagined car's
+        projection on the route (:func:`road_points`).
 
         >>> import torch
         >>> from tensordict import TensorDict
@@ -161,7 +128,7 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
         ensemble = bool(params) and len(params) > 1 and all(p is not None for p in params)
         members = [None] if ensemble or not params else list(params)
         road = self.dynamics.road  # a model that reads the road gets it, like the goals, from the route
-        route = root["route_ahead"].float() if route_goals or road else None
+        route = root["route_ahead"].float() if road else None
         stacked = torch.stack(list(params)) if ensemble else None
         positions, goals = [], []
         for member in members:  # an ensemble runs all members at once: one pass
@@ -176,9 +143,7 @@ class ImaginedNavigationEnv(ModelBasedEnvBase):
                     ahead = road_points(route, road, index) if road else None
                     state = (self.dynamics.ensemble_forward(hist, sequences[:, h], stacked, ahead) if ensemble
                              else self.dynamics(hist, action, ahead))
-                    if route_goals:
-                        state, index = route_goal(state, route, index)
-                    elif road:  # the projection only (the road of the next step), not the goal
+                    if road:  # the car's projection: where the road of the next step starts
                         index = route_index(state, route, index)
                     hist = self.dynamics.next_window(hist, action, state)
                     pos.append(state[..., [X, Y]])

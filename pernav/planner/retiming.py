@@ -26,9 +26,7 @@ candidate must beat explore's plan by ``margin`` (absolute) plus ``rel_margin`` 
 in at least ``agree`` of the rows (ensemble members or samples; with ``agree=1`` the worst member's gain must
 clear it: a lower confidence bound), and the rows must agree on what the re-timing does to the car's path (the
 spread of its effect, at most ``max_spread`` metres plus ``rel_spread`` times the effect's size); otherwise it
-plays explore's action. So a poor or uncertain model costs little. With ``rescue`` set, the spread test is waived
-for a *rescue*: every row sees explore's plan leave the planned route by more than ``rescue`` metres within the
-horizon (a missed turn, a circled roundabout) and the candidate stay within it.
+plays explore's action. So a poor or uncertain model costs little.
 
 Reads ``"history"``, ``"explore_future"`` ``[F]``, ``"route_ahead"`` ``[P, 2]`` and ``"action_mask"`` (the
 navigation env provides them, :mod:`pernav.env.planning`); writes ``"action"``.
@@ -56,7 +54,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
 from pernav.env.layout import ROUTE_SPACING
-from pernav.model.dynamics import GX, GY, STATE_DIM, X, Y
+from pernav.model.dynamics import GX, GY, STATE_DIM
 from pernav.world.cost import tracking_cost
 
 __all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
@@ -125,22 +123,12 @@ class RetimingPlanner(MPCPlannerBase):
             or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
             it gained (docs/findings.md), so it is 0 by default. With one row (one model, or one true-model
             sample) the spread is 0.
-        rescue: waive the spread test where every row sees explore's plan leave the planned route by more than
-            this many metres within the horizon and the candidate stay within it in every row (the gain test
-            still applies); ``None`` (default): no waiver. The rows disagree on how far a missed exit takes the
-            car, not on whether it is missed.
-        route_goals: imagine each state's goal from the known route (as the env sets it) rather than the
-            model's guess (:meth:`~pernav.model.navigation.ImaginedNavigationEnv.imagine`; learned models only).
-        rescue_evidence: in a study, allow rescues in a round only where :meth:`alarm_check` on the round's
-            tau (this driver's own explore drive) finds the rows' alarm raised where the real car left the
-            route and nowhere else (the study runner applies it; the planner alone ignores it).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 max_spread: float | None = 2.0, rel_spread: float = 0.0, rescue: float | None = None,
-                 rescue_evidence: bool = True, route_goals: bool = False, playbacks: int | None = None) -> None:
+                 max_spread: float | None = 2.0, rel_spread: float = 0.0, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
@@ -153,11 +141,6 @@ class RetimingPlanner(MPCPlannerBase):
         if rel_spread < 0:
             raise ValueError(f"rel_spread must be >= 0, got {rel_spread}")
         self.rel_spread = float(rel_spread)
-        if rescue is not None and rescue <= 0:
-            raise ValueError(f"rescue must be > 0 metres or None, got {rescue}")
-        self.rescue = None if rescue is None else float(rescue)
-        self.rescue_evidence = bool(rescue_evidence)
-        self.route_goals = bool(route_goals)
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (3 if n_actions == 21 else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -172,13 +155,11 @@ class RetimingPlanner(MPCPlannerBase):
             return seqs, 1
         return torch.cat([seqs * 3 + p for p in (1, 0, 2)]), 3  # normal first: explore's is row 0 of its block
 
-    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``[M, N]`` cost of each sequence for each row of the env's imagination, the imagined positions
-        ``[M, N, H, 2]`` and ``[M, N]`` the largest distance (m) from the planned route over the horizon."""
+    def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``[M, N]`` cost of each sequence for each row of the env's imagination, and the imagined positions
+        ``[M, N, H, 2]``."""
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
-        if self.route_goals:
-            kwargs["route_goals"] = True
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
         start_goal = root["history"][-1, [GX, GY]].float()
         prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
@@ -188,51 +169,7 @@ class RetimingPlanner(MPCPlannerBase):
         dist, nearest = d.min(-1)
         cost = cost + self.route_weight * (dist ** 2).sum(-1)
         progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
-        return cost - progress, pos, dist.amax(-1)
-
-    @torch.no_grad()
-    def alarm_check(self, trajectory: TensorDictBase, distance: float | None = None,
-                    decisions_only: bool = True) -> dict[str, float | int]:
-        """How the rescue's alarm fares on a real drive ``[T]`` (with ``"history"``, ``"route_ahead"``,
-        ``"action"`` and the next observations, in the model's action space; e.g. a round's tau).
-
-        At each step where the planner would search (:meth:`searches`; ``decisions_only``) the rows imagine the
-        drive's own next ``horizon`` actions; the step's *alarm level* is the smallest (over the rows) of their
-        largest distance from that step's route, and the step is *real* where the real car left that route by
-        more than ``distance`` (default ``rescue``) metres. Returns the counts of checked ``steps``, of
-        ``alarms`` (level above ``distance``), ``hits`` (alarms that were real), ``false_alarms`` and ``real``
-        steps, the ``threshold``: the smallest distance (at least ``distance``) at which no step that was not
-        real raises an alarm, and ``hits_at_threshold``: the real steps whose level exceeds it.
-
-        >>> import torch
-        >>> from tensordict import TensorDict
-        >>> from pernav.model import DynamicsModel
-        >>> from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-        >>> planner = RetimingPlanner(ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,)))), horizon=3)
-        >>> drive = TensorDict({"history": torch.zeros(6, 5, 21), "route_ahead": torch.zeros(6, 10, 2),
-        ...                     "action": torch.zeros(6, dtype=torch.long),
-        ...                     "next": {"observation": torch.zeros(6, 14)}}, [6])
-        >>> planner.alarm_check(drive, distance=1e6, decisions_only=False)["alarms"]
-        0
-        """
-        distance = self.rescue if distance is None else float(distance)
-        if distance is None:
-            raise ValueError("alarm_check needs a distance (the planner has no rescue distance)")
-        T, H = trajectory.shape[0], self.horizon
-        actions = trajectory["action"].reshape(T).long()
-        seqs = actions.unfold(0, H, 1)[: max(T - H, 0)]  # [T - H, H]: the drive's own next H actions at each step
-        positions = trajectory["next", "observation"][:, [X, Y]].float()
-        steps = [t for t in range(seqs.shape[0]) if not decisions_only or self.searches(trajectory[t])]
-        levels, real = torch.zeros(len(steps)), torch.zeros(len(steps), dtype=torch.bool)
-        for i, t in enumerate(steps):
-            root = trajectory[t]
-            levels[i] = self.costs(root, seqs[t:t + 1])[2][:, 0].min()  # every row's distance exceeds this
-            real[i] = torch.cdist(positions[t:t + H], root["route_ahead"].float()).min(-1).values.max() > distance
-        alarm = levels > distance
-        threshold = max(distance, float(levels[~real].max())) if bool((~real).any()) else distance
-        return {"steps": len(steps), "alarms": int(alarm.sum()), "hits": int((alarm & real).sum()),
-                "false_alarms": int((alarm & ~real).sum()), "real": int(real.sum()), "threshold": round(threshold, 3),
-                "hits_at_threshold": int((levels[real] > threshold).sum())}
+        return cost - progress, pos
 
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
@@ -265,7 +202,7 @@ class RetimingPlanner(MPCPlannerBase):
         explore_action = int(seqs[explore, 0])
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None
-        cost, pos, off = self.costs(root, seqs)  # [M, N], [M, N, H, 2], [M, N]
+        cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
         spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
         gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
@@ -274,10 +211,7 @@ class RetimingPlanner(MPCPlannerBase):
         ok &= torch.isfinite(mean)
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
             size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
-            agreed = spread <= self.max_spread + self.rel_spread * size
-            if self.rescue is not None:  # explore's plan leaves the route in every row, the candidate in none
-                agreed |= bool((off[:, explore] > self.rescue).all()) & (off <= self.rescue).all(0)
-            ok &= agreed
+            ok &= spread <= self.max_spread + self.rel_spread * size
         self.decisions += 1
         if bool(ok.any()):
             chosen = int(torch.where(ok, mean, torch.full_like(mean, float("inf"))).argmin())

@@ -1,9 +1,10 @@
 """A study's navigation personalized to a person: the adapted-model policy and Algorithm 1 with a person in the loop.
 
-:func:`study_policy` loads a finished study's meta model ensemble for a town (:func:`pernav.study.runner.final_models`),
-adapts every member to a person on their drive tau exactly as the study adapts to a round's user at test time (``U``:
-one gradient step of ``alpha`` on tau's L-step loss, backtracked and clipped as the study's ``TrainConfig`` says; or
-``personal_updates`` maximum-likelihood updates where the study used them) and returns the study's own planner (its
+:func:`study_policy` loads a finished study's meta model ensemble for a town
+(:func:`pernav.study.checkpoints.final_models`), adapts every member to a person on their drive tau exactly as the
+study adapts to a round's user at test time (``U``: one gradient step of ``alpha`` on tau's L-step loss, backtracked
+and clipped as the study's ``TrainConfig`` says; or ``personal_updates`` maximum-likelihood updates where the study
+used them) and returns the study's own planner (its
 ``planner`` options, ``retime`` by default) on :class:`~pernav.model.navigation.ImaginedNavigationEnv` planning with
 those parameters: a :class:`StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession` policy, that also
 carries the env settings the study planned on (history ``K``, planning context lengths), which the session takes.
@@ -47,16 +48,16 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.adapt import meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlayResult, PlaySession
+from pernav.study.checkpoints import final_models
 from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.collect import derive_seed, to_speed_actions
+from pernav.trainer.collect import derive_seed, in_action_space
 from pernav.trainer.drives import atomic_write, load_drive, save_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig
@@ -153,8 +154,6 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
     ...
     pernav.play.loop.PlayError: no study folder '/nonexistent'
     """
-    from pernav.study.runner import final_models
-
     folder = Path(study_dir)
     config = study_settings(folder, town)
     methods = list(config.get("methods") or [])
@@ -171,43 +170,25 @@ def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> Stud
                       model.config(), members, config)
 
 
-def _in_model_space(trajectory: TensorDictBase, n_actions: int) -> TensorDictBase:
-    """A drive in the model's action space: a 7-action drive (explore) re-encoded for a 21-action model, with the
-    planning context the rescue check reads (as the study's runner does)."""
-    drive_actions = trajectory["history"].shape[-1] - trajectory["observation"].shape[-1]  # one-hot width
-    if n_actions != 21 or drive_actions == 21:
-        return trajectory
-    out = to_speed_actions(trajectory)
-    for key in ("route_ahead", "explore_future"):
-        if key in trajectory.keys():
-            out[key] = trajectory[key]
-    if "action_mask" in trajectory.keys():
-        out["action_mask"] = trajectory["action_mask"].repeat_interleave(3, -1)
-    return out
-
-
 def adapted_parameters(study: StudyModel, trainer: EnsembleTrainer, drives: Sequence[TensorDictBase],
                        seed: int = 0) -> list[TensorDictBase]:
     """Every member's parameters for planning with a person whose latest drives are ``drives`` (the last one is
-    their tau), by the study's own test-time rule (``runner.Learner.adapted``): ``U(P, tau)`` with the study's
-    ``alpha``, ``L``, ``backtrack`` and ``max_grad_norm``; or, where the study adapted by ``personal_updates``,
-    that many updates on the drives. No drives (or ``sysid``): the meta parameters themselves.
+    their tau), by the study's own test-time rule (:meth:`~pernav.trainer.EnsembleTrainer.adapted_parameters`):
+    ``U(P, tau)``, or ``personal_updates`` updates on the drives. No drives (or ``sysid``): the meta parameters.
 
     >>> study = load_study("runs/smoke", "Town1")                                      # doctest: +SKIP
     >>> len(adapted_parameters(study, study.trainer(), [tau])) == study.train.ensemble  # doctest: +SKIP
     True
     """
     if not drives or not study.meta:
-        return [meta_parameters(m.model).detach().clone() for m in trainer.members]
+        return trainer.adapted_parameters(None, meta=False)
     for d in drives:
         if d["history"].shape[-2] != study.K:
             raise PlayError(f"a drive with a history of {d['history'].shape[-2]} steps: the study's model reads "
                             f"{study.K} (record it with this study's policy or session, or pernav play --history "
                             f"{study.K})")
-    drives = [_in_model_space(d, study.n_actions) for d in drives]
-    if study.train.personal_updates:
-        return trainer.fine_tuned(list(drives), study.train.personal_updates, seed, replay=study.train.personal_replay)
-    return trainer.parameters(drives[-1], adapted=True, alpha=study.train.alpha)
+    drives = [in_action_space(d, study.n_actions) for d in drives]
+    return trainer.adapted_parameters(drives[-1], drives, seed=seed)
 
 
 class StudyPolicy:
@@ -218,29 +199,17 @@ class StudyPolicy:
 
     __name__ = "study"
 
-    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None,
-                 tau: TensorDictBase | None = None) -> None:
+    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None) -> None:
         model = DynamicsModel(**study.model_config)
         model.load_state_dict(study.members[0])
         self.study = study
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), study.planner, study.n_actions)
-        self.rescue = getattr(self.planner, "rescue", None)  # the study's rescue distance (None: no rescue)
         self.env_config, self.K, self.n_actions = study.env_config(), study.K, study.n_actions
-        self.set_parameters(params, tau)
+        self.set_parameters(params)
 
-    def set_parameters(self, params: list[TensorDictBase] | None, tau: TensorDictBase | None = None) -> None:
-        """Plan with ``params`` (every member's; ``None``: the first member's own weights). A planner with a
-        rescue distance rescues only where its alarm on this person's ``tau`` proves right, at the distance that
-        check gives, as in the study's rounds (``runner._rescue_check``); without a tau, not at all."""
+    def set_parameters(self, params: list[TensorDictBase] | None) -> None:
+        """Plan with ``params`` (every member's; ``None``: the first member's own weights)."""
         self.planner.params = params
-        if self.rescue is None or not getattr(self.planner, "rescue_evidence", False):
-            return
-        self.planner.rescue = self.rescue  # the check starts from the study's distance
-        if tau is None:
-            self.planner.rescue = None
-            return
-        counts = self.planner.alarm_check(_in_model_space(tau, self.n_actions))
-        self.planner.rescue = counts["threshold"] if counts["hits_at_threshold"] > 0 else None
 
     def __call__(self, td: TensorDictBase) -> TensorDictBase:
         return self.planner(td)
@@ -260,13 +229,12 @@ def study_policy(study_dir: str | Path, town: str, tau_trajectories: TensorDictB
         [tau_trajectories] if isinstance(tau_trajectories, TensorDictBase) else list(tau_trajectories))
     trainer = study.trainer(seed=seed)
     params = adapted_parameters(study, trainer, drives, seed)
-    policy = StudyPolicy(study, params, drives[-1] if drives else None)
+    policy = StudyPolicy(study, params)
     info = {"study": str(study.folder), "town": town, "learner": learner, "members": len(study.members),
             "adapted": bool(drives) and study.meta,
             "adaptation": ("personal_updates" if study.train.personal_updates else "U") if drives and study.meta else None,
             "tau_steps": [int(d.shape[0]) for d in drives], "planner": {"kind": "retime", **study.planner},
-            "env_config": dict(policy.env_config), "K": policy.K,
-            "rescue": getattr(policy.planner, "rescue", None)}
+            "env_config": dict(policy.env_config), "K": policy.K}
     return policy, info
 
 
@@ -477,14 +445,14 @@ class PersonalSession:
 
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # no note of every round's new storage
         # a round's data in the learner's action space (explore's 7 actions re-encoded for adapt_speed's 21)
-        self.buffers.add(round_, _in_model_space(tau, self.study.n_actions), tau=True)
+        self.buffers.add(round_, in_action_space(tau, self.study.n_actions), tau=True)
         if other is not None:
-            self.buffers.add(round_, _in_model_space(other, self.study.n_actions))
+            self.buffers.add(round_, in_action_space(other, self.study.n_actions))
         for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
             self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
         self.params = adapted_parameters(self.study, self.trainer, [tau],
                                          derive_seed(self.seed, self.town, "personal", round_))
-        self.policy.set_parameters(self.params, tau)
+        self.policy.set_parameters(self.params)
         self.adapted_on = round_
         self.learned.append(round_)
         self._save_model()
@@ -543,14 +511,14 @@ class PersonalSession:
             self.meta_losses = list(state["meta_losses"])
             for r in learned:
                 tau, other = self._whole_trajectory(r, "explore"), self._whole_trajectory(r, "adapted")
-                self.buffers.add(r, _in_model_space(tau, self.study.n_actions), tau=True)
+                self.buffers.add(r, in_action_space(tau, self.study.n_actions), tau=True)
                 if other is not None:
-                    self.buffers.add(r, _in_model_space(other, self.study.n_actions))
+                    self.buffers.add(r, in_action_space(other, self.study.n_actions))
             self.buffers.generator.set_state(state["buffers_generator"])
             last = learned[-1]
             self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],
                                              derive_seed(self.seed, self.town, "personal", last))
-            self.policy.set_parameters(self.params, self._whole_trajectory(last, "explore"))
+            self.policy.set_parameters(self.params)
             self.adapted_on = last
         self.learned = learned
         if len(self.learned) == len(self.routes) and all(self._whole(r, label) for r, _, _, label, _ in self._slots()):

@@ -125,7 +125,6 @@ class EpisodeJob:
     model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
     params: Any = None  # adapted parameters (TensorDict), a belief (dict) for "belief", or None
     policy_name: str = ""  # the study method this episode evaluates
-    planner_options: dict | None = None  # overrides of cfg.planner for this episode (e.g. a round's rescue off)
 
 
 def make_policy(job: EpisodeJob) -> Any:
@@ -146,8 +145,7 @@ def make_policy(job: EpisodeJob) -> Any:
 
     model = DynamicsModel(**job.model["config"])
     model.load_state_dict(job.model["state"])
-    options = {**job.cfg.planner, **(job.planner_options or {})}
-    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), options, job.n_actions)
+    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), job.cfg.planner, job.n_actions)
     planner.params = job.params
     return planner
 

@@ -17,8 +17,8 @@ into every learner's round data as simulated drives do (the first is the round's
 online, the round is a round of data: adapt's losses on it are recorded and the learners update, but no method
 is evaluated (nobody can re-drive the person for every method) and no rollouts are collected.
 
-A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically
-(a new folder, then a manifest with checksums replaced in one ``os.replace``).
+A checkpoint (models, optimizers, buffers, results so far) is written after every entry, atomically (a new folder,
+then a manifest with checksums replaced in one ``os.replace``; :mod:`pernav.study.checkpoints`).
 
 Every random choice is derived from (seed, town, entry, purpose), and torch runs on one thread in a town
 job, so a town's results do not depend on which process or worker runs it.
@@ -27,12 +27,8 @@ job, so a town's results do not depend on which process or worker runs it.
 from __future__ import annotations
 
 import copy
-import hashlib
-import json
 import logging
-import os
 import random
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,17 +44,18 @@ from pernav.model.timing import TARGETS as TIMING_TARGETS
 from pernav.model.timing import TimingModel, timing_features
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
+from pernav.study.checkpoints import final_models, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, to_speed_actions
+from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
 from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.world.drivers import Population, resolve
 
-__all__ = ["CheckpointError", "final_models", "run_town"]
+__all__ = ["CheckpointError", "final_models", "run_town"]  # final_models: from pernav.study.checkpoints
 
 log = logging.getLogger("pernav.study")
 
@@ -81,18 +78,15 @@ class Learner:
 
     def adapted(self, round_: int, cfg: StudyConfig, seed: int = 0) -> Any:
         """The parameters the planner uses in round ``round_``: every member's, adapted to the round's user for
-        meta learners (``U`` on tau, or ``personal_updates`` updates on the user's drives); ``None`` (the
-        model's own) for a single sysid model."""
+        meta learners (:meth:`~pernav.trainer.EnsembleTrainer.adapted_parameters` on tau and the calibration
+        drives); ``None`` (the model's own) for a single sysid model."""
         if not self.meta and cfg.train.ensemble == 1:
             return None
-        if self.meta and cfg.train.personal_updates:
-            return self.trainer.fine_tuned(self.buffers.user_trajectories(round_), cfg.train.personal_updates, seed,
-                                           replay=cfg.train.personal_replay)
-        return self.trainer.parameters(self.buffers.tau(round_), adapted=self.meta, alpha=cfg.train.alpha)
+        return self.trainer.adapted_parameters(self.buffers.tau(round_), self.buffers.user_trajectories(round_),
+                                               self.meta, seed)
 
     def add(self, round_: int, trajectory: Any, tau: bool = False, calibration: bool = False) -> None:
-        data = to_speed_actions(trajectory) if self.n_actions == 21 else trajectory
-        self.buffers.add(round_, data, tau=tau, calibration=calibration)
+        self.buffers.add(round_, in_action_space(trajectory, self.n_actions), tau=tau, calibration=calibration)
 
     def state(self) -> dict[str, Any]:
         return self.trainer.state_dict()
@@ -112,22 +106,6 @@ def _collector(cfg: StudyConfig, seed: int) -> Any:
 def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
     """The policy of a round's adaptation trajectory tau (``cfg.tau``): explore, or explore re-timed at random."""
     return RetimedExplore(seed=derive_seed(seed, "tau")) if cfg.tau == "retimed" else explore_module()
-
-
-def _rescue_check(learner: Learner, params: Any, tau: Any) -> dict[str, Any] | None:
-    """Whether and at what distance ``learner``'s planner may rescue in this round (``None``: the planner has no
-    rescue, or needs no evidence). On the round's tau, with the round's parameters, the alarm's distance is
-    raised until it is silent wherever the real car kept to the route; rescues are allowed at that distance if
-    the alarm still sounds where the car left it (:meth:`~pernav.planner.RetimingPlanner.alarm_check`)."""
-    planner = learner.planner
-    if getattr(planner, "rescue", None) is None or not planner.rescue_evidence:
-        return None
-    if learner.n_actions == 21:  # tau's actions are instructions: in the 21-action space
-        tau = to_speed_actions(tau).update({"route_ahead": tau["route_ahead"], "explore_future": tau["explore_future"],
-                                            "action_mask": tau["action_mask"].repeat_interleave(3, -1)})
-    planner.params = params
-    counts = planner.alarm_check(tau)
-    return {**counts, "allowed": counts["hits_at_threshold"] > 0}
 
 
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
@@ -186,78 +164,6 @@ class _Timer:
 
     def __exit__(self, *exc: Any) -> None:
         self.profile[self.key] = self.profile.get(self.key, 0.0) + time.perf_counter() - self.t0
-
-
-# ----- checkpoints ------------------------------------------------------------------------------------
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: dict[str, Learner]) -> None:
-    """Write ``folder/entry_{index}`` then atomically point ``folder/manifest.json`` at it."""
-    folder.mkdir(parents=True, exist_ok=True)
-    final = folder / f"entry_{index:03d}"
-    tmp = folder / f".tmp_entry_{index:03d}"
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir()
-    torch.save({"state": state, "learners": {k: v.state() for k, v in learners.items()}}, tmp / "state.pt")
-    for name, learner in learners.items():
-        learner.buffers.save(tmp / f"buffers_{name}")
-    files = {str(p.relative_to(tmp)): _sha256(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
-    shutil.rmtree(final, ignore_errors=True)
-    os.replace(tmp, final)
-    manifest = {"index": index, "folder": final.name, "files": files}
-    tmp_manifest = folder / ".manifest.json.tmp"
-    tmp_manifest.write_text(json.dumps(manifest))
-    os.replace(tmp_manifest, folder / "manifest.json")
-    for old in folder.glob("entry_*"):  # keep only the checkpoint the manifest points at
-        if old.name != final.name:
-            shutil.rmtree(old, ignore_errors=True)
-
-
-def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[DynamicsModel, list[dict]]:
-    """A finished study's last checkpointed ensemble of ``learner`` in ``town``: a module of its
-    architecture and every member's state dict (load one with ``model.load_state_dict``).
-
-    >>> model, members = final_models("runs/default", "Town1")  # doctest: +SKIP
-    """
-    manifest = Path(study) / "checkpoints" / town / "manifest.json"
-    if not manifest.is_file():
-        raise CheckpointError(f"no {town} checkpoint in {str(study)!r} (run the study first)")
-    data = torch.load(manifest.parent / json.loads(manifest.read_text())["folder"] / "state.pt", weights_only=False)
-    if learner not in data["learners"]:
-        raise CheckpointError(f"learner {learner!r} not in the checkpoint; it has {', '.join(data['learners'])}")
-    members = data["learners"][learner]["members"]
-    return DynamicsModel(**members[0]["model_config"]), [m["model"] for m in members]
-
-
-def load_checkpoint(folder: Path, learners: dict[str, Learner]) -> dict[str, Any] | None:
-    """Restore learners from the manifest's checkpoint; ``None`` when there is none. Verifies checksums."""
-    manifest_path = folder / "manifest.json"
-    if not manifest_path.exists():
-        return None
-    try:
-        manifest = json.loads(manifest_path.read_text())
-        ckpt = folder / manifest["folder"]
-        files = manifest["files"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise CheckpointError(f"checkpoint manifest {str(manifest_path)!r} is corrupted ({exc})") from None
-    for rel, digest in files.items():
-        path = ckpt / rel
-        if not path.is_file():
-            raise CheckpointError(f"checkpoint file {str(path)!r} is missing")
-        if _sha256(path) != digest:
-            raise CheckpointError(f"checkpoint file {str(path)!r} is corrupted (checksum mismatch)")
-    data = torch.load(ckpt / "state.pt", weights_only=False)
-    for name, learner in learners.items():
-        learner.trainer.load_state_dict(data["learners"][name])
-        loaded = RoundBuffers.load(ckpt / f"buffers_{name}")
-        learner.buffers.__dict__.update(loaded.__dict__)
-    return data["state"]
 
 
 # ----- the town job -----------------------------------------------------------------------------------
@@ -382,14 +288,8 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
         if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
             adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
             state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
-        checks = {name: _rescue_check(learner, adapted[name], tau) for name, learner in learners.items()}
-    for name, check in checks.items():
-        if check is not None:
-            state.setdefault("rescue_checks", {}).setdefault(name, {})[entry.label] = check
-    off = {name: {"rescue": c["threshold"] if c["allowed"] else None}  # this round's rescue distance
-           for name, c in checks.items() if c is not None}
-    _evaluate(run, entry, learners, adapted, off, record)
-    _rollouts(run, entry, index, rng, adapted, off)
+    _evaluate(run, entry, learners, adapted, record)
+    _rollouts(run, entry, index, rng, adapted)
     # the online loss of adapt before the update (for the model-loss regret)
     if "adapt" in learners:
         _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
@@ -397,11 +297,11 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
 
 
 def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: dict[str, Any],
-              off: dict[str, dict[str, Any]], record: dict[str, Any]) -> None:
+              record: dict[str, Any]) -> None:
     """Every method on the round's evaluation routes, on the same episode seeds, into ``record``."""
     methods = [m for m in run.cfg.methods if m != "hindsight"]
     jobs = [EpisodeJob(run.cfg, run.town, entry, route, run.seed(entry.label, "eval", route),
-                       *_policy_spec(method, learners, adapted), planner_options=off.get(method))
+                       *_policy_spec(method, learners, adapted))
             for method in methods for route in range(run.cfg.routes)]
     with _Timer(run.profile, "evaluation_s"):
         metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} episodes")
@@ -411,17 +311,13 @@ def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: d
                                                 if j.policy_name == method])
 
 
-def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted: dict[str, Any],
-              off: dict[str, dict[str, Any]]) -> None:
+def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted: dict[str, Any]) -> None:
     """Data collection: ``rollouts`` drives per learner, its MPC w.p. 1/2 else explore, into its own D_t."""
     cfg, learners = run.cfg, run.learners
     with _Timer(run.profile, "collection_s"):
         planning_before = sum(learner.planner.planning_s for learner in learners.values())
         for name, learner in learners.items():
             learner.planner.params = adapted[name]
-            rescue = getattr(learner.planner, "rescue", None)
-            if name in off:  # the rollouts rescue as this round's evaluation does
-                learner.planner.rescue = off[name]["rescue"]
             for k in range(cfg.rollouts):
                 use_mpc = rng.random() < 0.5
                 route = rng.randrange(10)
@@ -429,17 +325,13 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
                 policy = learner.planner if use_mpc else _collector(cfg, seed)
                 traj = episode(cfg, run.town, entry, route, seed, policy, learner.n_actions)
                 learner.buffers.add(index, traj)  # already in the learner's action space
-            if name in off:
-                learner.planner.rescue = rescue
     run.profile["collection_planning_s"] = run.profile.get("collection_planning_s", 0.0) + sum(
         learner.planner.planning_s for learner in learners.values()) - planning_before
 
 
 def _town_result(run: _Town) -> dict[str, Any]:
     state = run.state
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
-                          **({"rescue_checks": state["rescue_checks"][name]} if name in state.get("rescue_checks", {})
-                             else {})}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
                    for name, learner in run.learners.items()}
     if "timing_beliefs" in state:
         diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
@@ -555,11 +447,8 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
     params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
               for index, entry in online}
-    # rescues need a round-time check on tau (_rescue_check), which hindsight, trained after the last round, has not
-    evidence = hind.planner.rescue_evidence if getattr(hind.planner, "rescue", None) is not None else False
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight",
-                       planner_options={"rescue": None} if evidence else None)
+                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online if not entry.drives for route in routes]  # recorded rounds: no episodes
     with _Timer(state["profile"], "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")

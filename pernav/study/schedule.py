@@ -21,11 +21,11 @@ Example:
 from __future__ import annotations
 
 import glob
-import hashlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from pernav.study.checkpoints import file_sha256
 from pernav.world.drivers import CONTEXT_CHOICES, NAMED_USERS, Context, DriverProfile, ProfileError, named_user
 from pernav.world.files import DataFileError, is_file, read_data_file
 from pernav.world.towns import TOWN_NAMES
@@ -90,12 +90,8 @@ class Entry:
         out["towns"] = list(self.towns) if self.towns is not None else None
         del out["drives"]  # absent without drives: a study's fingerprint stays what it was before the field
         if self.drives:  # the files' contents too: a resumed study must learn from the same drives
-            out["drives"] = [{"file": p, "sha256": _sha256(p)} for p in self.drives]
+            out["drives"] = [{"file": p, "sha256": file_sha256(p)} for p in self.drives]
         return out
-
-
-def _sha256(path: str) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _drive_town(path: str) -> Any:

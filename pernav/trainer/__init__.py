@@ -11,7 +11,8 @@ from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import FTMLTrainer, TrainConfig
 
 _COLLECT = {**{name: "pernav.trainer.collect"
-               for name in ("derive_seed", "drive", "episode_metrics", "history_env", "to_speed_actions")},
+               for name in ("derive_seed", "drive", "episode_metrics", "history_env", "in_action_space",
+                            "to_speed_actions")},
             **{name: "pernav.trainer.drives" for name in ("load_drive", "read_metrics", "save_drive")}}
 __all__ = ["KEYS", "EnsembleTrainer", "FTMLTrainer", "RoundBuffers", "TrainConfig", *sorted(_COLLECT)]
 __getattr__ = lazy_exports(__name__, _COLLECT)[0]

@@ -23,7 +23,7 @@ from pernav.env.torchrl_env import make_torchrl_env
 from pernav.model.dynamics import road_of
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "to_speed_actions"]
+__all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "in_action_space", "to_speed_actions"]
 
 MAX_STEPS = 2000  # the env truncates far earlier (time limit); this only bounds a runaway loop
 
@@ -84,3 +84,10 @@ def to_speed_actions(trajectory: TensorDictBase, n_instructions: int = 7) -> Ten
     wide[..., 1::3] = onehot
     out["history"] = torch.cat([hist[..., :S], wide], dim=-1)
     return out
+
+
+def in_action_space(trajectory: TensorDictBase, n_actions: int) -> TensorDictBase:
+    """``trajectory`` in the action space of an ``n_actions`` model: a 7-action drive (explore's, a person's)
+    re-encoded for a 21-action model (:func:`to_speed_actions`); a drive already in that space as it is."""
+    width = trajectory["history"].shape[-1] - trajectory["observation"].shape[-1]  # the action one-hot's
+    return to_speed_actions(trajectory) if n_actions == 21 and width != 21 else trajectory

@@ -25,7 +25,7 @@ Example:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import torch
@@ -80,7 +80,7 @@ class EnsembleTrainer:
                     buffers: RoundBuffers | None = None, seed: int = 0,
                     loss_fn: LossFn | None = None) -> EnsembleTrainer:
         """An ensemble of ``DynamicsModel(**config)`` members starting from ``states`` (their state dicts,
-        normalization included), e.g. a finished study's (:func:`pernav.study.runner.final_models`)."""
+        normalization included), e.g. a finished study's (:func:`pernav.study.checkpoints.final_models`)."""
         out = cls(lambda: DynamicsModel(**config), buffers if buffers is not None else RoundBuffers(L=train.L),
                   train, size=len(states), seed=seed, loss_fn=loss_fn)
         for member, state in zip(out.members, states, strict=True):
@@ -147,10 +147,11 @@ class EnsembleTrainer:
         steps = [m.step(float(v)) for m, v in zip(self.members, values, strict=True)]
         return sum(steps) / len(steps)
 
-    def parameters(self, tau: TensorDictBase, adapted: bool, alpha: float,
+    def parameters(self, tau: TensorDictBase | None, adapted: bool, alpha: float,
                    fixed_step: bool = False) -> list[TensorDictBase]:
         """Every member's parameters (detached), each adapted on ``tau`` with ``U`` when ``adapted`` (its step
-        backtracked as ``config.backtrack`` says; ``fixed_step``: the paper's fixed ``alpha`` regardless)."""
+        backtracked as ``config.backtrack`` says; ``fixed_step``: the paper's fixed ``alpha`` regardless; not
+        ``adapted``: the members' own, ``tau`` unread)."""
         out = []
         backtrack = None if fixed_step else self.config.backtrack
         for m in self.members:
@@ -162,6 +163,19 @@ class EnsembleTrainer:
             else:
                 out.append(meta_parameters(m.model).detach().clone())
         return out
+
+    def adapted_parameters(self, tau: TensorDictBase | None, drives: Sequence[TensorDictBase] = (), meta: bool = True,
+                           seed: int = 0) -> list[TensorDictBase]:
+        """Every member's parameters for planning with one user, by the test-time rule ``config`` sets (the
+        study's rounds and a person's session alike): ``personal_updates`` updates on the user's ``drives``
+        (``tau`` among them; default ``[tau]``) with ``personal_replay``, else ``U(P, tau)`` with ``alpha``.
+        ``meta=False`` (a learner that does not adapt) or no ``tau``: the members' own parameters."""
+        if not meta or tau is None:
+            return self.parameters(tau, adapted=False, alpha=self.config.alpha)
+        if self.config.personal_updates:
+            return self.fine_tuned(list(drives) or [tau], self.config.personal_updates, seed,
+                                   replay=self.config.personal_replay)
+        return self.parameters(tau, adapted=True, alpha=self.config.alpha)
 
     def fine_tuned(self, trajectories: list[TensorDictBase], updates: int, seed: int = 0,
                    bootstrap: bool = False, replay: float = 0.0) -> list[TensorDictBase]:
