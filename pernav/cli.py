@@ -363,6 +363,43 @@ def _drive_options(p: argparse.ArgumentParser, record_help: str) -> None:
                    help="with --input joystick: skip the screen showing each axis moving before the first drive")
 
 
+def _add_study_parser(sub: Any) -> None:
+    """``pernav study``: its many options in one place."""
+    p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
+    p.add_argument("--preset", default="default",
+                   help="smoke | default | paper | personal | personal_paper | personal_sweep")
+    p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
+    p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
+    p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--planner", choices=["retime", "paper"],
+                   help="the learners' planner: retime (default: long horizon, re-timed explore prompts) or paper "
+                        "(horizon-5 masked tree)")
+    p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the planner's options (pernav.planner.factory.PLANNER_DEFAULTS; VALUE in JSON, e.g. "
+                        "max_spread=null); repeatable")
+    p.add_argument("--train-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150, "
+                        "personal_updates=100, or backtrack=null for the paper's fixed adaptation step); repeatable")
+    p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="one of the timing learner's options (offline_drivers, l2, quantile, gate; VALUE a number); "
+                        "repeatable")
+    p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: the preset's)")
+    p.add_argument("--collect", choices=COLLECT,
+                   help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
+                        "at random; the default preset's choice)")
+    p.add_argument("--tau", choices=COLLECT,
+                   help="the policy of each round's adaptation trajectory: explore (the paper's rule; default) or "
+                        "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
+    p.add_argument("--calibration", type=int, metavar="N",
+                   help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
+    p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
+    p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
+    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+                   help="run towns and evaluation episodes as Ray tasks (a local cluster when no ADDRESS)")
+    p.set_defaults(func=_study)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="pernav", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -430,39 +467,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--screenshots", metavar="DIR", help="with play: save a picture of each view in this folder")
     p.set_defaults(func=_bench)
 
-    p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
-    p.add_argument("--preset", default="default",
-                   help="smoke | default | paper | personal | personal_paper | personal_sweep")
-    p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
-    p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
-    p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--planner", choices=["retime", "paper"],
-                   help="the learners' planner: retime (default: long horizon, re-timed explore prompts) or paper "
-                        "(horizon-5 masked tree)")
-    p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="one of the planner's options (pernav.planner.factory.PLANNER_DEFAULTS; VALUE in JSON, e.g. "
-                        "max_spread=null); repeatable")
-    p.add_argument("--train-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150, "
-                        "personal_updates=100, or backtrack=null for the paper's fixed adaptation step); repeatable")
-    p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="one of the timing learner's options (offline_drivers, l2, quantile, gate; VALUE a number); "
-                        "repeatable")
-    p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: the preset's)")
-    p.add_argument("--collect", choices=COLLECT,
-                   help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
-                        "at random; the default preset's choice)")
-    p.add_argument("--tau", choices=COLLECT,
-                   help="the policy of each round's adaptation trajectory: explore (the paper's rule; default) or "
-                        "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
-    p.add_argument("--calibration", type=int, metavar="N",
-                   help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
-    p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
-    p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
-    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
-                   help="run towns and evaluation episodes as Ray tasks (a local cluster when no ADDRESS)")
-    p.set_defaults(func=_study)
+    _add_study_parser(sub)
 
     p = sub.add_parser("judge", help="the personal benchmark's pre-registered figures of a learner (docs/personal.md)")
     p.add_argument("studies", nargs="+", help="study folders (or results.json files) of the personal preset; "

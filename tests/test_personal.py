@@ -278,7 +278,7 @@ def test_docstring_examples():
     assert doctest.testmod(pernav.play.personal).failed == 0
 
 
-# ----- issue 41: resume, Ctrl-C, checks before anyone drives --------------------------------------------------------
+# ----- resume, Ctrl-C, checks before anyone drives --------------------------------------------------------
 class Killed(BaseException):
     """The process killed (nothing after it runs: no summary, no clean-up)."""
 

@@ -1,4 +1,4 @@
-"""Property-based tests (hypothesis) of every validation on user input (issue #5, docs/reliability.md).
+"""Property-based tests (hypothesis) of every validation on user input (docs/reliability.md).
 
 - ``DriverProfile``: values inside ``PROFILE_RANGES`` construct and round-trip; anything else (out of
   range, wrong type, nan/inf, unknown field) is a ``ProfileError`` naming the field (and the range).

@@ -1,4 +1,4 @@
-"""Issue #33: a schedule entry takes recorded drives (a person's, ``pernav play --record``) as its round's data, so a
+"""A schedule entry takes recorded drives (a person's, ``pernav play --record``) as its round's data, so a
 study mixes people and simulated drivers; bad drives are one-line errors naming the entry and the file (exit 2)."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A long study is unbreakable (issue #5): Ray, SIGKILL at any moment, corrupted checkpoints, NaN losses."""
+"""A long study is unbreakable: Ray, SIGKILL at any moment, corrupted checkpoints, NaN losses."""
 
 from __future__ import annotations
 

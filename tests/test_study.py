@@ -1,4 +1,4 @@
-"""The online study (issue #4): smoke preset schema, determinism across workers, resume, bad input."""
+"""The online study: smoke preset schema, determinism across workers, resume, bad input."""
 
 from __future__ import annotations
 
