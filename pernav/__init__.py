@@ -5,7 +5,7 @@ Importing pernav registers the gymnasium ids ``pernav/Town1-v0`` … ``pernav/To
 
 import gymnasium as gym
 
-from pernav.world.layout import TOWN_NAMES
+from pernav.world.constants import TOWN_NAMES
 
 __version__ = "0.1.0"
 

@@ -28,9 +28,9 @@ from typing import Any
 from pernav.planner.factory import parse_planner_options
 from pernav.study.config import COLLECT, LEARNERS, METHODS
 from pernav.study.errors import CheckpointError
+from pernav.world.constants import PLAYBACK
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.files import key_values
-from pernav.world.layout import PLAYBACK
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 

@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pernav.world.layout import ACTION_NAMES, PLAYBACK, PLAYBACK_SCALE, audio_duration
+from pernav.world.constants import ACTION_NAMES, PLAYBACK, PLAYBACK_SCALE, audio_duration
 
 RATE = 16_000  # Hz of the written files
 WPM = 150  # words a minute at normal playback

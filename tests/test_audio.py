@@ -14,7 +14,7 @@ import pernav  # noqa: F401  (registers the ids)
 from pernav.env.navigation import REPLAY_AFTER, NavigationEnv
 from pernav.play import audio
 from pernav.play.audio import Speaker, speech_file, wav_duration
-from pernav.world.layout import ACTION_NAMES, PLAYBACK, audio_duration
+from pernav.world.constants import ACTION_NAMES, PLAYBACK, audio_duration
 
 SPOKEN = range(1, len(ACTION_NAMES))
 

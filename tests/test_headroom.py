@@ -9,8 +9,8 @@ from pathlib import Path
 from pernav.env.policies import explore_policy, late_share, lateness
 from pernav.study.config import preset
 from pernav.study.headroom import SEEDS, TARGETS, classify, personal_schedule, preregistration
+from pernav.world.constants import audio_duration
 from pernav.world.drivers import Context, named_user, resolve
-from pernav.world.layout import audio_duration
 
 REGISTERED = Path(__file__).parents[1] / "docs" / "figures" / "personal" / "preregistration.json"
 

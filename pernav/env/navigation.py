@@ -27,6 +27,7 @@ import numpy as np
 
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
 from pernav.env.policies import NavView, PromptPolicy, belief_policy, explore_policy, oracle_policy
+from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -39,7 +40,6 @@ from pernav.world.drivers import (
     resolve,
 )
 from pernav.world.files import DataFileError, is_file, read_data_file
-from pernav.world.layout import N_INSTRUCTIONS, PLAYBACK
 from pernav.world.routing import Route, RouteError, plan_route
 from pernav.world.simulation import World
 from pernav.world.towns import TOWN_NAMES, TownError, get_town

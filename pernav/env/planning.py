@@ -31,7 +31,7 @@ import numpy as np
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
-from pernav.world.layout import N_INSTRUCTIONS, TURN_INSTRUCTIONS
+from pernav.world.constants import N_INSTRUCTIONS, TURN_INSTRUCTIONS
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
 
 __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",

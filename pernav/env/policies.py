@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pernav.world.constants import audio_duration
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
-from pernav.world.layout import audio_duration
 from pernav.world.routing import Manoeuvre, Route
 from pernav.world.simulation import SPEED_RING
 

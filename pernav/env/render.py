@@ -28,7 +28,7 @@ class Renderer:
         from highway_env.road.graphics import RoadGraphics
         from highway_env.vehicle.graphics import VehicleGraphics
 
-        from pernav.world.layout import ACTION_NAMES
+        from pernav.world.constants import ACTION_NAMES
 
         pg, surf, world = self.pygame, self.surface, env.world
         surf.move_display_window_to(world.ego.position)

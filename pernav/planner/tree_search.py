@@ -41,8 +41,8 @@ from tensordict import TensorDictBase
 from pernav.model.dynamics import GX, GY, X, Y
 from pernav.model.losses import using
 from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult
+from pernav.world.constants import TURN_INSTRUCTIONS
 from pernav.world.cost import tracking_cost
-from pernav.world.layout import TURN_INSTRUCTIONS
 
 __all__ = ["TreeSearchPlanner"]
 

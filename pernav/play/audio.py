@@ -27,8 +27,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from pernav.world.layout import ACTION_NAMES as INSTRUCTIONS  # light: loads neither highway-env nor pygame
-from pernav.world.layout import PLAYBACK
+from pernav.world.constants import ACTION_NAMES as INSTRUCTIONS  # light: loads neither highway-env nor pygame
+from pernav.world.constants import PLAYBACK
 
 SPEECH_DIR = Path(__file__).resolve().parent / "speech"
 RATE = 16_000  # Hz of the speech files: the mixer opens at it, so SDL need not resample them

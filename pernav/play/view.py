@@ -87,7 +87,7 @@ class PlayView:
 
     def draw(self, session: Any, alpha: float = 1.0) -> None:
         """Draw ``session``'s world with every car ``alpha`` of the way from its last frame to this one."""
-        from pernav.world.layout import ACTION_NAMES
+        from pernav.world.constants import ACTION_NAMES
 
         if self.camera is None:
             self._choose(session)

@@ -1,7 +1,7 @@
 """The simulated world: towns, routes, drivers, traffic and the tracking cost.
 
 The names below load on first use, so that the learning side can import a light module (``pernav.world.cost``,
-``pernav.world.layout``) without highway-env.
+``pernav.world.constants``) without highway-env.
 """
 
 from pernav._lazy import lazy_exports
@@ -25,7 +25,7 @@ _EXPORTS = {
     "Town": "pernav.world.towns",
     "TownError": "pernav.world.towns",
     "get_town": "pernav.world.towns",
-    "TOWN_NAMES": "pernav.world.layout",
+    "TOWN_NAMES": "pernav.world.constants",
 }
 __all__ = sorted(_EXPORTS)
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

@@ -8,10 +8,10 @@ import numpy as np
 from highway_env.road.lane import CircularLane
 from highway_env.vehicle.kinematics import Vehicle
 
+from pernav.world.constants import audio_duration
 from pernav.world.controls import ExternalControls, PersonAtTheWheel
 from pernav.world.drivers import Driver
 from pernav.world.events import Heard
-from pernav.world.layout import audio_duration
 from pernav.world.towns import SPEED_RING, LaneIndex, turn_direction
 from pernav.world.vehicles import PathCar, _clamp, _wrap, braking_for, idm_acceleration
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from highway_env.road.road import RoadNetwork
 
-from pernav.world.layout import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
+from pernav.world.constants import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
 from pernav.world.towns import LaneIndex, Town, turn_direction
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from highway_env.road.lane import AbstractLane, CircularLane, LineType, StraightLane
 from highway_env.road.road import RoadNetwork
 
-from pernav.world.layout import TOWN_NAMES
+from pernav.world.constants import TOWN_NAMES
 
 LaneIndex = tuple[str, str, int]
 
@@ -133,8 +133,8 @@ TOWN_SPECS: dict[str, TownSpec] = {
         "Downtown: two-lane avenues crossing two-lane boulevards, one-lane side streets.",
     ),
 }
-if tuple(TOWN_SPECS) != TOWN_NAMES:  # the light list (pernav.world.layout) names these maps, in order
-    raise RuntimeError(f"TOWN_SPECS {tuple(TOWN_SPECS)} differ from pernav.world.layout.TOWN_NAMES")
+if tuple(TOWN_SPECS) != TOWN_NAMES:  # the light list (pernav.world.constants) names these maps, in order
+    raise RuntimeError(f"TOWN_SPECS {tuple(TOWN_SPECS)} differ from pernav.world.constants.TOWN_NAMES")
 
 
 class TownError(ValueError):

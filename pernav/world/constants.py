@@ -1,4 +1,5 @@
-"""Constants of the world's layout that the learning side needs, in a module that loads no highway-env.
+"""The world's constants that the learning side needs (town names, waypoint spacing, the instructions and their
+spoken durations), in a module that loads no highway-env.
 
 >>> TOWN_NAMES[0], WAYPOINT_SPACING
 ('Town1', 2.0)
