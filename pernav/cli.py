@@ -388,7 +388,7 @@ def _add_study_parser(sub: Any) -> None:
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
                         "at random; the default preset's choice)")
-    p.add_argument("--tau", choices=COLLECT,
+    p.add_argument("--tau-policy", dest="tau_policy", choices=COLLECT,
                    help="the policy of each round's adaptation trajectory: explore (the paper's rule; default) or "
                         "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
     p.add_argument("--calibration", type=int, metavar="N",
@@ -512,8 +512,8 @@ def _study(args: argparse.Namespace) -> None:
         cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
     if args.collect is not None:
         cfg.collect = args.collect
-    if args.tau is not None:
-        cfg.tau = args.tau
+    if args.tau_policy is not None:
+        cfg.tau = args.tau_policy
     if args.calibration is not None:
         cfg.calibration = args.calibration
     try:

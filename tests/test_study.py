@@ -256,8 +256,8 @@ def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, cap
     with pytest.raises(PresetError, match="tau must be one of explore, retimed, got 'random'"):
         cfg.validate()
     with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
-        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--tau", "random"])
-    assert exit_.value.code == 2 and "--tau" in capsys.readouterr().err and not (tmp_path / "s").exists()
+        main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--tau-policy", "random"])
+    assert exit_.value.code == 2 and "--tau-policy" in capsys.readouterr().err and not (tmp_path / "s").exists()
 
 
 def test_every_yaml_preset_loads_validates_and_inherits_its_base(tmp_path, monkeypatch) -> None:

@@ -6,13 +6,13 @@ effective reaction and decision times, explore's share of late "turn" prompts an
 :func:`pernav.model.timing.timing_features` and the delay (steps) from each "prepare" prompt said at speed to the
 first step in which the car slows. It then reports each feature's AUC for the late class (excess >= 0.05) and the
 leave-one-out R^2 of ridge regressions of log reaction time, log decision time, the excess and the oracle's "turn"
-lead (s at 10 m/s). With ``--tau retimed`` the drive is explore re-timed at random on every prompt it can move
+lead (s at 10 m/s). With ``--tau-policy retimed`` the drive is explore re-timed at random on every prompt it can move
 (:class:`pernav.planner.retiming.RetimedExplore`, p = 1), and three more features describe the "turn" prompts'
 outcomes against their lead (s to the junction when said): the share missed among prompts said under 4 s, the
 share missed or answered by hard braking or steering, and the shortest lead of a prompt answered calmly.
 
 Run (about 4 min for 80 drivers in Town3, 7 min in Town1, one core):
-    .venv/bin/python docs/research/scripts/timing_identifiability.py Town3 80 778 [--tau retimed]
+    .venv/bin/python docs/research/scripts/timing_identifiability.py Town3 80 778 [--tau-policy retimed]
 """
 
 from __future__ import annotations
@@ -92,7 +92,7 @@ def main() -> None:
     ap.add_argument("town")
     ap.add_argument("drivers", type=int)
     ap.add_argument("population_seed", type=int)
-    ap.add_argument("--tau", choices=("explore", "retimed"), default="explore")
+    ap.add_argument("--tau-policy", dest="tau", choices=("explore", "retimed"), default="explore")
     args = ap.parse_args()
     cfg, population, rng = preset("personal"), Population(seed=args.population_seed), random.Random(args.population_seed)
     rows = []
