@@ -1,4 +1,5 @@
-"""Shared by the tests that interrupt a study: kill it once a checkpoint is written, then resume it."""
+"""Shared by the study tests: one uninterrupted smoke study per test session, and killing a study once a
+checkpoint is written, then resuming it."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+
+from filelock import FileLock
 
 
 def kill_then_resume(cmd: list[str], out: Path, town: str, index: int, timeout: float = 300.0) -> dict:
@@ -31,3 +34,23 @@ def kill_then_resume(cmd: list[str], out: Path, town: str, index: int, timeout: 
     resumed = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     return json.loads((out / "results.json").read_text())
+
+
+def without_timing(results: dict) -> dict:
+    """``results`` as results.json holds it, less its wall-clock ``timing``."""
+    return json.loads(json.dumps({k: v for k, v in results.items() if k != "timing"}))
+
+
+def smoke_reference(tmp_path_factory) -> dict:
+    """The uninterrupted single-process smoke study (Town1), less its timing: run once per test session and shared
+    by the pytest-xdist workers (each waits on a file lock while the first runs it), so that the tests comparing an
+    interrupted, resumed, parallel or Ray-run study against it do not each run it again."""
+    from pernav.study import preset, run_study
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # this session's workers share it
+    out = shared / "smoke_reference"
+    with FileLock(str(shared / "smoke_reference.lock")):
+        if not (out / "results.json").exists():
+            run_study(preset("smoke"), out, report=False)
+    return without_timing(json.loads((out / "results.json").read_text()))

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from study_helpers import smoke_reference, without_timing
 
 import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
@@ -23,14 +24,10 @@ CMD = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke"]
 ENV = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
 
 
-def _without_timing(results: dict) -> dict:
-    return json.loads(json.dumps({k: v for k, v in results.items() if k != "timing"}))
-
-
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict:
     """The uninterrupted single-process smoke study."""
-    return _without_timing(run_study(preset("smoke"), tmp_path_factory.mktemp("ref") / "study", report=False))
+    return smoke_reference(tmp_path_factory)
 
 
 @pytest.mark.slow
@@ -41,7 +38,7 @@ def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = json.loads((out / "results.json").read_text())
     assert got["timing"]["ray"] is True
-    assert _without_timing(got) == reference
+    assert without_timing(got) == reference
 
 
 @pytest.mark.slow
@@ -58,7 +55,7 @@ def test_sigkill_at_a_random_moment_then_resume_gives_the_same_results(reference
     done_before = json.loads(manifest.read_text())["index"] + 1 if manifest.exists() else 0
     resumed = subprocess.run([*CMD, "--out", str(out), "--resume"], env=ENV, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert _without_timing(json.loads((out / "results.json").read_text())) == reference
+    assert without_timing(json.loads((out / "results.json").read_text())) == reference
     print(f"killed={killed} after {delay:.1f} s with {done_before} entries checkpointed")
 
 
