@@ -41,16 +41,26 @@ def without_timing(results: dict) -> dict:
     return json.loads(json.dumps({k: v for k, v in results.items() if k != "timing"}))
 
 
-def smoke_reference(tmp_path_factory) -> dict:
-    """The uninterrupted single-process smoke study (Town1), less its timing: run once per test session and shared
-    by the pytest-xdist workers (each waits on a file lock while the first runs it), so that the tests comparing an
-    interrupted, resumed, parallel or Ray-run study against it do not each run it again."""
+def shared_study(tmp_path_factory, name: str, towns: tuple[str, ...] = ("Town1",), workers: int = 1) -> Path:
+    """The smoke preset's study of ``towns`` with ``workers``, run once per test session in a folder that the
+    pytest-xdist workers share (each waits on a file lock while the first runs it): the tests that compare an
+    interrupted, resumed, parallel or Ray-run study against it do not each run it again, and a module's tests
+    spread over both workers do not run their module's study twice. Returns the study folder."""
     from pernav.study import preset, run_study
 
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # this session's workers share it
-    out = shared / "smoke_reference"
-    with FileLock(str(shared / "smoke_reference.lock")):
+    out = shared / name
+    with FileLock(str(shared / f"{name}.lock")):
         if not (out / "results.json").exists():
-            run_study(preset("smoke"), out, report=False)
+            cfg = preset("smoke")
+            cfg.towns = list(towns)
+            results = run_study(cfg, out, workers=workers)
+            assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
+    return out
+
+
+def smoke_reference(tmp_path_factory) -> dict:
+    """The uninterrupted single-process smoke study (Town1), less its timing."""
+    out = shared_study(tmp_path_factory, "smoke_reference")
     return without_timing(json.loads((out / "results.json").read_text()))

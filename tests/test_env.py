@@ -117,6 +117,7 @@ def test_cli_profile_file_errors(tmp_path, capsys):
     assert "unknown profile field 'speed'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_cli_drive_json_and_gif(tmp_path):
     gif = tmp_path / "r.gif"
     out = subprocess.run([sys.executable, "-m", "pernav.cli", "drive", "--town", "Town1", "--policy", "oracle",

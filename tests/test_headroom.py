@@ -102,6 +102,7 @@ def test_a_late_answering_driver_is_prompted_earlier_and_one_inside_the_slack_as
     assert fast == {}  # the gate: explore's own timing
 
 
+@pytest.mark.slow
 def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path) -> None:
     from pernav.study import run_study
 

@@ -269,15 +269,6 @@ def test_a_sysid_session_trains_plainly_and_plans_unadapted(tmp_path, monkeypatc
         meta = meta_parameters(member.model).detach()
         assert all(torch.equal(meta[k], params[k]) for k in meta.keys(True, True))
 
-
-def test_docstring_examples():
-    import doctest
-
-    import pernav.play.personal
-
-    assert doctest.testmod(pernav.play.personal).failed == 0
-
-
 # ----- resume, Ctrl-C, checks before anyone drives --------------------------------------------------------
 class Killed(BaseException):
     """The process killed (nothing after it runs: no summary, no clean-up)."""

@@ -42,7 +42,7 @@ def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kill_seed", [0, 1, 2])
+@pytest.mark.parametrize("kill_seed", [0, 1])
 def test_sigkill_at_a_random_moment_then_resume_gives_the_same_results(reference, tmp_path, kill_seed):
     out = tmp_path / "killed"
     delay = random.Random(kill_seed).uniform(4.0, 25.0)  # mid-round, between rounds or mid-checkpoint

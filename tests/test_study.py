@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
-from study_helpers import kill_then_resume, smoke_reference, without_timing
+from study_helpers import shared_study, smoke_reference, without_timing
 
 from pernav.cli import main
 from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
@@ -24,15 +23,14 @@ def _smoke(towns: list[str]):
 
 @pytest.fixture(scope="module")
 def two_workers(tmp_path_factory) -> tuple[Path, dict]:
-    out = tmp_path_factory.mktemp("smoke2") / "study"
-    return out, run_study(_smoke(["Town1", "Town2"]), out, workers=2)
+    """The smoke study of Town1 and Town2 on a pool of two workers (run once per session)."""
+    out = shared_study(tmp_path_factory, "smoke_two_workers", ("Town1", "Town2"), workers=2)
+    return out, json.loads((out / "results.json").read_text())
 
 
 @pytest.mark.slow
 def test_smoke_results_match_the_schema(two_workers):
-    out, results = two_workers
-    on_disk = json.loads((out / "results.json").read_text())
-    assert on_disk == json.loads(json.dumps(results))
+    out, on_disk = two_workers
     assert {"config", "iterations", "summary"} <= set(on_disk)
     labels = [it["label"] for it in on_disk["iterations"]]
     assert labels == ["Offline 0", "Online 0", "Online 8"]
@@ -66,16 +64,6 @@ def test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_worker
     assert [it["towns"]["Town1"] for it in two["iterations"]] == [it["towns"]["Town1"] for it in one["iterations"]]
     for key in ("summary", "regret", "diagnostics"):
         assert two[key]["Town1"] == one[key]["Town1"], key
-
-
-@pytest.mark.slow
-def test_killed_study_resumes_to_the_same_results(two_workers, tmp_path):
-    _, reference = two_workers
-    out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--towns", "Town1", "--out", str(out)]
-    got = kill_then_resume(cmd, out, "Town1", index=1)  # once the second entry is checkpointed
-    for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
-        assert it_got["towns"]["Town1"] == json.loads(json.dumps(it_ref["towns"]["Town1"]))
 
 
 def test_paper_schedule_is_the_table():

@@ -126,6 +126,7 @@ def test_history_window_serial_env_with_partial_reset() -> None:
     env.close()
 
 
+@pytest.mark.slow
 def test_history_window_parallel_env() -> None:
     # one ParallelEnv (worker start-up dominates the cost) with a window inside its workers (it travels to
     # them as a state entry) and another one around it

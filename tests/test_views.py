@@ -281,18 +281,6 @@ def test_the_person_handling_leaves_simulated_drivers_alone():
     assert simulated() == before
 
 
-def test_docstring_examples():
-    import doctest
-
-    import pernav.play.cameras
-    import pernav.play.handling
-    import pernav.play.scene
-    import pernav.play.seat
-
-    for module in (pernav.play.cameras, pernav.play.handling, pernav.play.scene, pernav.play.seat):
-        assert doctest.testmod(module).failed == 0, module.__name__
-
-
 def test_bench_screenshots_option_is_checked_first(tmp_path, capsys):
     from pernav.cli import main
 
