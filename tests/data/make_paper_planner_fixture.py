@@ -1,5 +1,5 @@
 """Decisions of the paper planner on five seeded, deliberately explosive models: the fixture of
-tests/test_discrete_planner.py. It runs on the current tree; regenerate it (and review the diff of decisions)
+tests/planner/test_discrete_planner.py. It runs on the current tree; regenerate it (and review the diff of decisions)
 only when a change to the planner is meant to change what it decides::
 
     .venv/bin/python tests/data/make_paper_planner_fixture.py tests/data/paper_planner.pt

@@ -12,7 +12,7 @@ from pernav.study.headroom import SEEDS, TARGETS, classify, personal_schedule, p
 from pernav.world.constants import audio_duration
 from pernav.world.drivers import Context, named_user, resolve
 
-REGISTERED = Path(__file__).parents[1] / "docs" / "figures" / "personal" / "preregistration.json"
+REGISTERED = Path(__file__).parents[2] / "docs" / "figures" / "personal" / "preregistration.json"
 
 
 def test_the_preregistered_classification_is_reproduced() -> None:

@@ -7,7 +7,7 @@ give only finite observations, rewards and info numbers, and end (terminated or 
 env's time limit. A hard step cap (never hit) keeps a broken time limit from hanging CI.
 
 ``PERNAV_FUZZ_EPISODES`` (default 2) sets the episodes per town and action space; e.g.
-``PERNAV_FUZZ_EPISODES=50 pytest tests/test_fuzz.py`` for a long run. ``PERNAV_FUZZ_SEED`` shifts every
+``PERNAV_FUZZ_EPISODES=50 pytest tests/world/test_fuzz.py`` for a long run. ``PERNAV_FUZZ_SEED`` shifts every
 random draw (default 0; CI is deterministic).
 """
 

@@ -24,7 +24,7 @@ from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner import DiscreteTreeSearchPlanner, TreeSearchPlanner
 
 D, A = 3, 4
-FIXTURE = Path(__file__).parent / "data" / "paper_planner.pt"
+FIXTURE = Path(__file__).parents[1] / "data" / "paper_planner.pt"
 # costs reach ~1e4 m^2 from the fixture's explosive models; another CPU rounds the MLP's matrix products
 # differently (3e-4 relative seen across two x86-64 machines), so costs are compared to this tolerance
 COST_RTOL = 1e-3

@@ -24,7 +24,7 @@ from pernav.trainer import RoundBuffers
 from pernav.trainer.collect import history_env
 
 S = 14
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "components.md"
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "components.md"
 TOWN1 = ("Town1", {"route": 0, "user": "user1"})
 FAST = {"n_traffic": 2}
 
