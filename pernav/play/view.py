@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +49,12 @@ class PlayView:
         self.pygame = pygame
         self.window = window
         if window:
+            if sys.platform.startswith("linux") and not os.environ.get("SDL_VIDEODRIVER") \
+                    and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+                # no X or Wayland display: say so before SDL tries one (it prints its own lines, e.g. about
+                # XDG_RUNTIME_DIR, then falls back to drawing off screen)
+                raise DisplayError("no display for the play window (neither DISPLAY nor WAYLAND_DISPLAY is set); use "
+                                   "--headless, or set SDL_VIDEODRIVER=dummy to draw off screen")
             try:
                 pygame.display.init()
                 self.surface = pygame.display.set_mode(size)

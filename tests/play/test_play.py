@@ -234,13 +234,14 @@ def test_bench_play_reports_frame_times(monkeypatch):
     assert 0 < out["frame_without_drawing_ms_median"] and out["drawn_vs_bare_median_ratio"] > 1
 
 
-def test_cli_without_a_display_exits_2_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    """A window asked for (no --headless) where there is no display: one line, exit 2, nothing recorded."""
-    for name in ("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY"):
+def test_cli_without_a_display_exits_2_and_writes_nothing(tmp_path, capfd, monkeypatch):
+    """A window asked for (no --headless) where there is no display: one line, exit 2, nothing recorded (capfd:
+    nothing printed by SDL itself either, such as its XDG_RUNTIME_DIR complaint)."""
+    for name in ("SDL_VIDEODRIVER", "DISPLAY", "WAYLAND_DISPLAY", "XDG_RUNTIME_DIR"):
         monkeypatch.delenv(name, raising=False)
     rec = tmp_path / "rec"
     assert main(["play", "--traffic", "0", "--no-audio", "--record", str(rec)]) == 2
-    err = capsys.readouterr().err
+    err = capfd.readouterr().err
     assert "no display" in err and err.count("\n") == 1 and "Traceback" not in err
     assert not rec.exists()
 
