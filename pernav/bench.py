@@ -147,8 +147,38 @@ def bench_planner(quick: bool = False) -> dict[str, Any]:
     beam = _bench_beam21(fast, planner.in_keys, n_masked, quick)
     retime = _bench_retime(data, routes, fast, steps.shape[0])
     toy = _toy_planner_ms(repeats=20 if quick else 100)
-    return {**retime, "threads": torch.get_num_threads(), **exhaustive, **masked, **flops, **beam, **toy,
+    batch = _bench_batch64(model, steps, repeats=3 if quick else 10)
+    return {**retime, "threads": torch.get_num_threads(), **exhaustive, **masked, **flops, **beam, **toy, **batch,
             "target": "level_vs_flat_ratio <= 0.3, masked_ms_median <= 20, retime_ms_median <= 20"}
+
+
+def _bench_batch64(model, steps, repeats: int) -> dict[str, Any]:
+    """(6) One masked search over a batch of 64 roots, on the CPU and, where there is one, on a CUDA device (the
+    model and the roots moved there; the planner follows their device)."""
+    import copy
+
+    import torch
+
+    from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
+    from pernav.planner import TreeSearchPlanner
+
+    roots = torch.cat([steps] * (64 // steps.shape[0] + 1))[:64].clone()
+    out: dict[str, Any] = {"batch64_roots": 64}
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    for device in devices:
+        planner = TreeSearchPlanner(ImaginedNavigationEnv(make_world_model(copy.deepcopy(model).to(device))))
+        batch = roots.to(device)
+        planner(batch.clone())  # warm-up (and CUDA's kernels)
+
+        def plan(planner=planner, batch=batch, device=device) -> None:
+            planner(batch.clone())
+            if device == "cuda":
+                torch.cuda.synchronize()
+
+        out[f"batch64_{device}_ms_median"] = _median_ms([_timed(plan)[0] for _ in range(repeats)])
+    if "cuda" not in devices:
+        out["batch64_cuda_ms_median"] = "no CUDA device"
+    return out
 
 
 def _bench_exhaustive(planner, data, quick: bool) -> tuple[dict[str, Any], list[float]]:
