@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 import torch
+from play_helpers import FrameScript
 
 from pernav.cli import main
 from pernav.env.navigation import NavigationEnv
@@ -42,25 +43,13 @@ def test_bot_drives_a_whole_route(bot_drive):
     assert bot_drive.frame_stats()["median_ms"] < 50
 
 
-class _Reckless:
+def _reckless() -> FrameScript:
     """Full throttle, and from the third second the wheel hard right: the car must hit the kerb."""
-
-    keeps_lanes = False
-    quit_requested = False
-
-    def __init__(self) -> None:
-        self.frames = 0
-
-    def poll(self) -> None:
-        pass
-
-    def read(self, car) -> ControlInput:
-        self.frames += 1
-        return ControlInput(steer=1.0 if self.frames > 30 else 0.0, throttle=1.0)
+    return FrameScript(lambda frame: ControlInput(steer=1.0 if frame > 30 else 0.0, throttle=1.0))
 
 
 def test_events_are_counted_for_a_person():
-    result = PlaySession("Town1", 0, n_traffic=0, controls=_Reckless()).run(max_steps=15)
+    result = PlaySession("Town1", 0, n_traffic=0, controls=_reckless()).run(max_steps=15)
     assert result.metrics["edge_strikes"] >= 1
     assert result.trajectory["next", "edge_strikes"][-1] == result.metrics["edge_strikes"]
 

@@ -10,6 +10,9 @@ import os
 
 import numpy as np
 import pytest
+from play_helpers import FrameScript
+
+from pernav.world.controls import ControlInput
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # windows drawn off screen
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
@@ -184,28 +187,14 @@ def test_default_view_is_the_simulated_drivers_camera():
     assert session.view.camera.name == Context().camera
 
 
-class _OffRoad:
+def _off_road() -> FrameScript:
     """Full throttle with the wheel turned right for a second, then braking: the car ends up off the road."""
-
-    keeps_lanes = False
-    quit_requested = False
-
-    def __init__(self) -> None:
-        self.frames = 0
-
-    def poll(self) -> None:
-        pass
-
-    def read(self, car):
-        from pernav.world.simulation import ControlInput
-
-        self.frames += 1
-        return ControlInput(steer=0.6 if 30 < self.frames < 45 else 0.0, throttle=float(self.frames < 60),
-                            brake=float(self.frames >= 60))
+    return FrameScript(lambda frame: ControlInput(steer=0.6 if 30 < frame < 45 else 0.0, throttle=float(frame < 60),
+                                                  brake=float(frame >= 60)))
 
 
 def test_off_the_route_an_arrow_shows_the_way_back():
-    session = PlaySession("Town1", 0, n_traffic=0, draw=True, controls=_OffRoad(), context={"camera": "third_person"})
+    session = PlaySession("Town1", 0, n_traffic=0, draw=True, controls=_off_road(), context={"camera": "third_person"})
     session.run(max_steps=8)
     assert session.nav.world.ego.off_road
     view = session.view
