@@ -526,6 +526,7 @@ def test_joystick_axes_with_inversion_and_the_calibration_screen():
 XVFB = shutil.which("Xvfb")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(XVFB is None, reason="Xvfb is not installed (a virtual X display for the real window)")
 def test_real_window_under_xvfb(tmp_path):
     """The real window (SDL's x11 driver on a virtual display): keys posted to its event queue, the bot's keys
