@@ -257,11 +257,10 @@ def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, rec
 def _recorded_round(run: _Town, entry: Entry, index: int) -> None:
     """An online entry of a person's recorded drives: a person cannot drive every method's episodes, so it is a
     round of data: adapt's losses on it, then the learners' updates."""
-    learners = run.learners
-    if "adapt" in learners:
-        seed = run.seed(entry.label, "adapt", "personal")
-        _round_losses(run.cfg, run.state, entry, index, learners["adapt"], learners["adapt"].adapted(index, run.cfg,
-                                                                                                     seed))
+    adapt = run.learners.get("adapt")
+    if adapt is not None:
+        params = adapt.adapted(index, run.cfg, run.seed(entry.label, "adapt", "personal"))
+        _round_losses(run.cfg, run.state, entry, index, adapt, params)
     _train(run)
 
 
@@ -288,7 +287,7 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
         if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
             adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
             state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
-    _evaluate(run, entry, learners, adapted, record)
+    _evaluate(run, entry, adapted, record)
     _rollouts(run, entry, index, rng, adapted)
     # the online loss of adapt before the update (for the model-loss regret)
     if "adapt" in learners:
@@ -296,12 +295,11 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
     _train(run)
 
 
-def _evaluate(run: _Town, entry: Entry, learners: dict[str, Learner], adapted: dict[str, Any],
-              record: dict[str, Any]) -> None:
+def _evaluate(run: _Town, entry: Entry, adapted: dict[str, Any], record: dict[str, Any]) -> None:
     """Every method on the round's evaluation routes, on the same episode seeds, into ``record``."""
     methods = [m for m in run.cfg.methods if m != "hindsight"]
     jobs = [EpisodeJob(run.cfg, run.town, entry, route, run.seed(entry.label, "eval", route),
-                       *_policy_spec(method, learners, adapted))
+                       *_policy_spec(method, run.learners, adapted))
             for method in methods for route in range(run.cfg.routes)]
     with _Timer(run.profile, "evaluation_s"):
         metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} episodes")
