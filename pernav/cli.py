@@ -26,7 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.planner.factory import parse_planner_options
-from pernav.study.config import COLLECT, LEARNERS, METHODS
+from pernav.study.config import COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS
 from pernav.study.errors import CheckpointError
 from pernav.world.constants import PLAYBACK
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
@@ -382,7 +382,7 @@ def _add_study_parser(sub: Any) -> None:
                    help="one of the model-learning options (pernav.trainer.TrainConfig, e.g. updates=150, "
                         "personal_updates=100, or backtrack=null for the paper's fixed adaptation step); repeatable")
     p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="one of the timing learner's options (offline_drivers, l2, quantile, gate; VALUE a number); "
+                   help=f"one of the timing learner's options ({', '.join(TIMING_DEFAULTS)}; VALUE a number); "
                         "repeatable")
     p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: the preset's)")
     p.add_argument("--collect", choices=COLLECT,

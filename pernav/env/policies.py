@@ -19,6 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -62,12 +63,16 @@ class NavView:
 class PromptPolicy:
     """Prompt timing for one driver model (the lead distances follow from its parameters).
 
-    ``driver`` is what the navigation believes about the user; ``margin`` seconds of slack."""
+    ``driver`` is what the navigation believes about the user; ``margin`` seconds of slack. ``fastest``, when
+    the navigation is unsure of its user, is the quickest driver it may be speaking to: the rules say a prompt as
+    early as ``driver`` needs it, but never so early that ``fastest`` would act on it at a junction before the one
+    meant (a roundabout exit to pass) or forget a "prepare" before committing. ``None``: ``driver`` itself."""
 
     driver: Driver
     margin: float = 0.8
     prepare_gap: float = 6.0
     step: float = 1.0  # s between two decisions of the policy (one env step)
+    fastest: Driver | None = None
 
     def __post_init__(self) -> None:
         # the slack covers a driver's slower prompts too: at least the 95th percentile of its reaction time
@@ -78,7 +83,7 @@ class PromptPolicy:
         """Metres before the stop line at which to say "prepare": ``prepare_gap`` seconds before the
         "turn", but late enough that the driver still remembers it when committing (the prepare is
         its fallback when the "turn" is lost)."""
-        d = self.driver
+        d = self.fastest or self.driver
         remembered = v * (audio_duration(3) + d.reaction_time + d.memory + d.decision_time - self.margin)
         return min(lead + v * (audio_duration(3) + self.prepare_gap), remembered)
 
@@ -103,13 +108,13 @@ class PromptPolicy:
         """Say "turn right" for ``exit_`` now? Not so early that the driver would take the exit
         before it (``before``, a ring exit it must pass)."""
         v = max(view.speed, 3.0)
-        commit, lead = self.exit_lead(v)
-        if exit_.s - view.progress - v * self.step > lead:  # the next step is still in time
+        if exit_.s - view.progress - v * self.step > self.exit_lead(v)[1]:  # the next step is still in time
             return False
         if before is None or before.kind == "enter":
             return True
-        active_at = view.progress + v * (audio_duration(EXIT) + self.driver.reaction_time)
-        return active_at >= before.s - commit + 1.0
+        fast = self.fastest or self.driver  # the quickest listener must have passed ``before`` when it acts
+        active_at = view.progress + v * (audio_duration(EXIT) + fast.reaction_time)
+        return active_at >= before.s - v * fast.decision_time + 1.0
 
     def __call__(self, view: NavView) -> int:
         d = self.driver
@@ -162,21 +167,30 @@ def oracle_policy(driver: Driver) -> PromptPolicy:
     return PromptPolicy(driver)
 
 
-def belief_policy(belief: dict[str, float]) -> PromptPolicy:
+def belief_policy(belief: dict[str, Any]) -> PromptPolicy:
     """The same rules re-timed for what the navigation believes of its user: ``belief`` holds effective
     :class:`~pernav.world.drivers.Driver` fields (e.g. ``reaction_time``, ``decision_time``) that replace the
-    average driver's; an empty belief is explore.
+    average driver's; an empty belief is explore. An optional ``"fastest"`` entry holds the same fields for the
+    quickest driver it may be (:class:`PromptPolicy`'s ``fastest``: the guards against a too-early prompt).
 
     >>> belief_policy({}).turn_lead(10.0) == explore_policy().turn_lead(10.0)
     True
     >>> belief_policy({"reaction_time": 2.5}).turn_lead(10.0) > explore_policy().turn_lead(10.0)
     True
+    >>> belief_policy({"reaction_time": 2.5, "fastest": {"reaction_time": 0.9}}).fastest.reaction_time
+    0.9
     """
     average = explore_policy().driver
-    unknown = sorted(set(belief) - set(BELIEF_FIELDS))
-    if unknown:
-        raise ValueError(f"unknown belief field {unknown[0]!r}; allowed: {', '.join(BELIEF_FIELDS)}")
-    return PromptPolicy(dataclasses.replace(average, **{k: float(v) for k, v in belief.items()}))
+
+    def driver(fields: dict[str, Any], where: str) -> Driver:
+        unknown = sorted(set(fields) - set(BELIEF_FIELDS))
+        if unknown:
+            raise ValueError(f"unknown {where} field {unknown[0]!r}; allowed: {', '.join(BELIEF_FIELDS)}")
+        return dataclasses.replace(average, **{k: float(v) for k, v in fields.items()})
+
+    point = {k: v for k, v in belief.items() if k != "fastest"}
+    fastest = belief.get("fastest")
+    return PromptPolicy(driver(point, "belief"), fastest=None if fastest is None else driver(fastest, "fastest"))
 
 
 def late_share(driver: Driver, lead_s: float, before: float, step: float = 1.0, n: int = 101) -> float:

@@ -11,7 +11,10 @@ offline MDPs), by ridge regression in log space; at round time it sees tau only.
 the user (:func:`pernav.env.policies.belief_policy`: explore's rule re-timed for it). The predicted *mean* decides
 whether to leave explore at all: only when it moves the "turn" prompt earlier by at least ``gate`` seconds (a
 driver the evidence places inside explore's slack keeps explore's timing). The belief then acted on is raised
-``quantile`` residual SDs above that mean: a late prompt costs far more than an early one.
+``quantile`` residual SDs above that mean: a late prompt costs far more than an early one. With ``guard`` the belief
+also names the quickest driver the evidence allows, so that the re-timed rule never says a prompt so early that
+such a driver acts on it at the junction before the one meant (a roundabout exit to pass): the early prompts are
+for the slow driver the belief fears, not a trap for the quick one it may be.
 
 Example:
     >>> import torch
@@ -24,6 +27,7 @@ Example:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -93,10 +97,12 @@ class TimingModel:
         l2: ridge penalty on the standardized features.
         quantile: residual SDs above the predicted mean that the belief takes (0: the posterior mean).
         gate: seconds by which the belief must move the "turn" prompt earlier than explore's, else explore.
+        guard: also name the quickest driver it may be (:meth:`fastest`), so that the re-timed rule never says a
+            prompt so early that a quick driver acts on it at the junction before the one meant.
     """
 
-    def __init__(self, l2: float = 3.0, quantile: float = 1.5, gate: float = 0.0) -> None:
-        self.l2, self.quantile, self.gate = float(l2), float(quantile), float(gate)
+    def __init__(self, l2: float = 3.0, quantile: float = 1.5, gate: float = 0.0, guard: bool = True) -> None:
+        self.l2, self.quantile, self.gate, self.guard = float(l2), float(quantile), float(gate), bool(guard)
         self.mean = self.scale = self.weight = self.resid = None
 
     def fit(self, features: torch.Tensor, targets: torch.Tensor) -> TimingModel:
@@ -133,13 +139,33 @@ class TimingModel:
         if self.earlier(features) < self.gate:
             return {}
         values = self.predict(features, self.quantile).tolist()
-        return {name: round(v, 4) for name, v in zip(TARGETS, values, strict=True)}
+        belief: dict[str, Any] = {name: round(v, 4) for name, v in zip(TARGETS, values, strict=True)}
+        if self.guard:
+            belief["fastest"] = self.fastest(features)
+        return belief
+
+    def fastest(self, features: torch.Tensor) -> dict[str, float]:
+        """The quickest driver the evidence allows, for the rules' guards against a too-early prompt: the prediction
+        ``quantile`` residual SDs *below* the mean, never slower than the average driver, and its reaction time at
+        the 5th percentile of one prompt's draw (a single prompt is heard as quickly as that one time in twenty).
+
+        >>> model = TimingModel().fit(torch.randn(8, N_FEATURES), torch.rand(8, 2) + 1.0)
+        >>> model.fastest(torch.zeros(N_FEATURES))["reaction_time"] < explore_policy().driver.reaction_time
+        True
+        """
+        low = dict(zip(TARGETS, self.predict(features, -self.quantile).tolist(), strict=True))
+        average = explore_policy().driver
+        quick = dataclasses.replace(average, reaction_time=min(low["reaction_time"], average.reaction_time))
+        return {"reaction_time": round(quick.reaction_draw(-1.645), 4),
+                "decision_time": round(min(low["decision_time"], average.decision_time), 4)}
 
     def state_dict(self) -> dict[str, Any]:
-        return {"l2": self.l2, "quantile": self.quantile, "gate": self.gate, "mean": self.mean, "scale": self.scale,
+        return {"l2": self.l2, "quantile": self.quantile, "gate": self.gate, "guard": self.guard,
+                "mean": self.mean, "scale": self.scale,
                 "weight": self.weight, "resid": self.resid}
 
     def load_state_dict(self, state: dict[str, Any]) -> TimingModel:
+        state = {"guard": False, **state}  # a model saved before the guard existed ran without it
         for key, value in state.items():
             setattr(self, key, value)
         return self

@@ -26,8 +26,9 @@ METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "o
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 # the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
-# ridge penalty, the residual SDs its belief adds to the predicted mean, and the gate (s earlier than explore)
-TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0}
+# ridge penalty, the residual SDs its belief adds to the predicted mean, the gate (s earlier than explore), and the
+# guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon)
+TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0, "guard": 1}
 
 
 class PresetError(ValueError):

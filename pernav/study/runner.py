@@ -411,7 +411,8 @@ def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
         driver = resolve(profile, context)
         features.append(timing_features(trajectory))
         targets.append(torch.tensor([getattr(driver, name) for name in TIMING_TARGETS]))
-    model = TimingModel(l2=options["l2"], quantile=options["quantile"], gate=options["gate"])
+    model = TimingModel(l2=options["l2"], quantile=options["quantile"], gate=options["gate"],
+                        guard=bool(options["guard"]))
     return model.fit(torch.stack(features), torch.stack(targets))
 
 

@@ -167,3 +167,51 @@ def test_the_sweep_shifts_only_the_average_drivers_reaction_time() -> None:
         assert others == {k: v for k, v in POPULATION_AVERAGE.to_dict().items() if k != "reaction_time"}
         assert e.context() == Context()
     preset("personal_sweep").validate()
+
+
+def _first_exit_prompt(policy, route, v: float = 8.0) -> float:
+    """Progress (m) at which ``policy`` first says the roundabout exit's "turn right", at a steady ``v`` m/s."""
+    from pernav.env.policies import EXIT, NavView
+
+    exit_ = next(m for m in route.manoeuvres if m.kind == "exit")
+    enter = next(m for m in route.manoeuvres if m.kind == "enter")
+    log: list[tuple[int, float]] = []
+    last = 0
+    for p in [enter.s - 60.0 + 0.5 * k for k in range(int((exit_.s - enter.s + 60.0) / 0.5))]:
+        action = policy(NavView(route, p, v, last, log))
+        if action == EXIT and exit_.s - p < 120 and p > enter.s:
+            return p
+        if action:
+            log.append((action, p))
+        last = action
+    raise AssertionError("no exit prompt")
+
+
+def test_the_guard_keeps_an_early_exit_prompt_after_a_quick_drivers_commit_at_the_exit_to_pass() -> None:
+    # a belief of a slow driver says the roundabout's exit prompt early; a quick driver who hears it before
+    # committing to pass the exit before would take that one. With ``fastest`` the prompt waits until the quick
+    # driver acts on it after its commit point there (and is still earlier than explore's)
+    from pernav.world.constants import audio_duration as audio
+    from pernav.world.towns import get_town
+
+    route = get_town("Town3").routes[1]
+    before = next(m for m in route.manoeuvres if m.kind == "pass")
+    slow = {"reaction_time": 2.6, "decision_time": 2.6}
+    fastest = {"reaction_time": 0.6, "decision_time": 1.4}
+    unguarded = _first_exit_prompt(belief_policy(slow), route)
+    guarded = _first_exit_prompt(belief_policy({**slow, "fastest": fastest}), route)
+    explore = _first_exit_prompt(explore_policy(), route)
+    assert unguarded < guarded <= explore
+    assert guarded + 8.0 * (audio(2) + fastest["reaction_time"]) >= before.s - 8.0 * fastest["decision_time"] + 1.0
+    assert unguarded + 8.0 * (audio(2) + fastest["reaction_time"]) < before.s - 8.0 * fastest["decision_time"]
+    with pytest.raises(ValueError, match="unknown fastest field 'speed'"):
+        belief_policy({**slow, "fastest": {"speed": 1.0}})
+
+
+def test_the_guarded_belief_names_a_quick_driver_beside_the_same_slow_belief(fitted) -> None:
+    tau = _tau("user3", Context(vehicle="cybertruck", visual="foggy"), 1, 3)
+    belief = fitted.belief(tau)
+    assert belief["fastest"]["reaction_time"] < explore_policy().driver.reaction_time < belief["reaction_time"]
+    assert belief["fastest"]["decision_time"] <= explore_policy().driver.decision_time
+    unguarded = TimingModel().load_state_dict({**fitted.state_dict(), "guard": False})
+    assert unguarded.belief(tau) == {k: v for k, v in belief.items() if k != "fastest"}
