@@ -468,7 +468,10 @@ def bench_timing(quick: bool = False) -> dict[str, Any]:
 
     env = NavigationEnv("Town3", config={"n_traffic": 8})
     env.reset(seed=0, options={"route": 1, "user": "user3"})
-    rule, explore = belief_policy({"reaction_time": 2.6, "decision_time": 3.0}), explore_policy()
+    # a slow belief with the quick driver its guard keeps in mind (the learner's usual belief)
+    rule = belief_policy({"reaction_time": 2.6, "decision_time": 3.0,
+                          "fastest": {"reaction_time": 0.6, "decision_time": 1.5}})
+    explore = explore_policy()
     belief_ms, explore_ms = [], []
     for _ in range(20 if quick else 80):
         view = env.nav_view()
