@@ -1,4 +1,4 @@
-"""The ``pernav`` command line: towns, drive, bench.
+"""The ``pernav`` command line: towns, drive, study, play, bench, diagnose, ...
 
 Bad input is reported as one line on stderr with exit code 2 (never a traceback). Ctrl-C ends a command with exit
 code 130 (`pernav play` and `pernav personalize` record the drive in progress first, marked stopped).
@@ -13,6 +13,7 @@ Example:
     $ pernav play --town Town1 --route 3 --policy study --study runs/default --tau drives/my-tau.pt
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/ --resume
+    $ pernav diagnose planning --routes 3 --paper-routes 0 --json planning_error.json
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from pernav.world.towns import TOWN_NAMES, TownError
 BENCH_CHOICES = ("sim", "planner", "train", "play", "timing")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
 MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
 INTERRUPTED = 130  # exit code after Ctrl-C (128 + SIGINT, as a shell reports it), in every command
+DIAGNOSTICS = {"model": "model_check", "planning": "planning_error"}  # pernav diagnose WHICH: pernav.diagnostics.*
 
 
 class UsageError(ValueError):
@@ -476,7 +478,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--learner", default="timing", help="the method judged (default: timing)")
     p.add_argument("--sweep", nargs="+", help="study folders of the personal_sweep preset: draw sweep.png")
     p.set_defaults(func=_judge)
+
+    p = sub.add_parser("diagnose", help="model and planning diagnostics (pernav diagnose model|planning --help)")
+    p.add_argument("which", metavar="{model,planning}", help="pernav.diagnostics.model_check or planning_error")
+    p.add_argument("args", nargs=argparse.REMAINDER, help="the diagnostic's own options")
+    p.set_defaults(func=_diagnose)
     return parser
+
+
+def _diagnose(args: argparse.Namespace) -> int:
+    """The diagnostic's own command line, imported only when it runs (it loads torch and the simulator)."""
+    if args.which not in DIAGNOSTICS:
+        raise UsageError(f"unknown diagnostic {args.which!r}; choose one of {', '.join(DIAGNOSTICS)}")
+    import importlib
+
+    module = importlib.import_module(f"pernav.diagnostics.{DIAGNOSTICS[args.which]}")
+    return module.main(args.args, prog=f"pernav diagnose {args.which}")
 
 
 def _study(args: argparse.Namespace) -> None:

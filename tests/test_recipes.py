@@ -1,5 +1,5 @@
-"""The recipes a user copies: each says what it shows and how long it takes, and the diagnostics report what
-they claim."""
+"""The recipes a user copies: each says what it shows and how long it takes, and pool_seeds reports what it claims
+(the model and planning diagnostics are pernav.diagnostics modules, tested in tests/diagnostics)."""
 
 from __future__ import annotations
 
@@ -20,36 +20,6 @@ def _recipe(name: str):
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
-
-
-def test_planning_error_resume_refuses_to_mix_retime_defaults_and_leaves_the_file(tmp_path):
-    from pernav.diagnostics.panel import PANEL
-
-    driver = next(iter(PANEL))
-    kept = tmp_path / "kept.json"  # one retime@true episode, written before the defaults were recorded
-    kept.write_text(json.dumps({"drivers": {}, "episodes": [
-        {"driver": driver, "town": "Town1", "route": 0, "seed": 1000, "method": "retime@true", "tracking_cost": 1.0}]}))
-    before = kept.read_text()
-    out = subprocess.run([sys.executable, str(ROOT / "recipes/planning_error.py"), "--routes", "1", "--paper-routes",
-                          "0", "--drivers", driver, "--json", str(kept), "--resume"],
-                         capture_output=True, text=True, cwd=ROOT)
-    assert out.returncode == 2 and "would mix" in out.stderr and "Traceback" not in out.stderr
-    assert kept.read_text() == before
-
-
-def test_planning_error_counts_an_option_added_later_as_off_in_files_written_before_it():
-    from pernav.planner.factory import PLANNER_DEFAULTS
-
-    same = _recipe("planning_error")._same_defaults
-    current = PLANNER_DEFAULTS["retime"]
-    added = next(reversed(current))  # an option a file written before it does not record
-    before = {k: v for k, v in current.items() if k != added}
-    assert same(before, current) and same(current, current)
-    assert not same({**before, "delay": current["delay"] + 3}, current) and not same(None, current)
-    assert not same({**current, added: "something else"}, current)
-    # the options removed since, recorded off (as docs/figures/planning_error.json has them), drove as today
-    assert same({**current, "rescue": None, "rescue_evidence": True, "route_goals": False}, current)
-    assert not same({**current, "rescue": 8.0}, current)
 
 
 def _study_results(seed: int, costs: dict[str, list[float]]) -> dict:

@@ -1,5 +1,7 @@
 """Tools to look at model error and plans: a true-dynamics world model (``TrueDynamicsEnv``), paired bootstrap
-statistics (:mod:`pernav.diagnostics.stats`, light: numpy only) and the planning-error panel."""
+statistics (:mod:`pernav.diagnostics.stats`, light: numpy only), the planning-error panel, and two diagnostics
+run as commands: :mod:`pernav.diagnostics.model_check` (``pernav diagnose model``) and
+:mod:`pernav.diagnostics.planning_error` (``pernav diagnose planning``)."""
 
 from pernav._lazy import lazy_exports
 

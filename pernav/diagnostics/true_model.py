@@ -6,7 +6,7 @@ simulator's own: reset from the live :class:`~pernav.env.navigation.NavigationEn
 re-seeded, so it does not know the live episode's future random draws (mishearing, compliance, the driver's
 guesses, traffic); :meth:`TrueDynamicsEnv.imagine` averages ``samples`` such futures. A planner given this
 env in place of the learned one has no model error: its loss to the oracle is *planning error*, and the
-learned planner's loss to it is *model error* (``recipes/planning_error.py``).
+learned planner's loss to it is *model error* (:mod:`pernav.diagnostics.planning_error`).
 
 Example:
     >>> import torch

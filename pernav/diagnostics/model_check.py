@@ -6,7 +6,7 @@ CPU (measured on a ``smoke`` study; a default study's larger ensemble may take l
 At approach states of panel drivers' explore episodes (a prompt of explore's plan is due within 1-4 steps),
 the true simulator is branched (re-seeded, 2 samples) into "explore's next prompts now" and "the same, 3 s
 later", and the car's position divergence between the two after 5 and 10 steps is measured. Each model
-imagines the same two sequences from the same state; the recipe reports the correlation (Pearson) between
+imagines the same two sequences from the same state; the diagnostic reports the correlation (Pearson) between
 the true and the predicted divergence, and the mean absolute error, for:
 
 * ``meta``: adapt's final meta model from a study (``--study DIR``, its Town checkpoint);
@@ -19,8 +19,9 @@ the true and the predicted divergence, and the mean absolute error, for:
   updates on that trajectory and ``--calibration`` (4) re-timed drives of the driver;
 * ``per-driver``: a model of the same size trained only on this driver's data (6 explore trajectories).
 
-Run (after ``make study`` or ``pernav study --preset default --out runs/default``):
-OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/model_check.py --study runs/default [--town Town1]
+Run (after ``make study`` or ``pernav study --preset default --out runs/default``; ``pernav diagnose model ...``
+takes the same options):
+OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m pernav.diagnostics.model_check --study runs/default [--town Town1]
 [--json docs/figures/model_check/model_check_Town1.json] [--plot docs/figures/model_check/divergence_Town1.png]
 [--tau retimed --calibration 0 --personal-updates 100]  (the models of a study run with those options)
 """
@@ -34,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
+from torchrl.envs import EnvBase
 
 from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PANEL
@@ -54,14 +57,15 @@ DELAY, STEPS = 3, (5, 10)
 PLANNING = env_planning_config({"kind": "retime"})  # the explore plan as far ahead as the re-timings reach
 
 
-def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: dict | None = None):
+def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: dict | None = None) -> EnvBase:
+    """The panel ``driver``'s history env (4 traffic cars) on ``route`` of ``town``; ``config`` adds env options."""
     user, context = PANEL[driver]
     return history_env(town, {"route": route, "user": user, "context": Context(**context)},
                        config={"n_traffic": 4, **(config or {})}, seed=seed, K=K)
 
 
-def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: str, calibration: int = 4,
-                    updates: int = 100) -> list:
+def personal_params(meta: DynamicsModel, members: list, tau: TensorDictBase, driver: str, town: str,
+                    calibration: int = 4, updates: int = 100) -> list:
     """The members fine-tuned as a study with ``calibration`` and ``personal_updates`` adapts: ``updates``
     updates on ``tau`` and ``calibration`` re-timed drives of the driver."""
     drives = [drive(driver_env(driver, town, k, 780 + k, meta.K, PLANNING), RetimedExplore(seed=780 + k))
@@ -71,6 +75,7 @@ def personal_params(meta: DynamicsModel, members: list, tau, driver: str, town: 
 
 
 def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsModel:
+    """A model of ``like``'s size trained (not meta-trained) on 6 explore drives of ``driver`` only."""
     buffers = RoundBuffers(L=5, seed=0)
     for k in range(6):
         buffers.add(0, drive(driver_env(driver, town, k % 10, 500 + k, like.K), explore_module()), tau=(k == 0))
@@ -109,8 +114,9 @@ def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2
     return {k: np.array(v) for k, v in out.items()}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """The command line (``argv``: its arguments, default ``sys.argv[1:]``); the exit code (2: no checkpoint)."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--study", required=True, help="a study output folder with checkpoints")
     ap.add_argument("--town", default="Town1")
     ap.add_argument("--drivers", nargs="*", default=list(PANEL))
@@ -122,12 +128,12 @@ def main() -> None:
     ap.add_argument("--personal-updates", type=int, default=100, help="updates of the personal model (default 100)")
     ap.add_argument("--adapt-step", choices=["study", "fixed"], default="study",
                     help="U as the study adapts at test time (default), or its fixed step alpha unclipped")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(1)
     study = Path(args.study)
     if not (study / "checkpoints" / args.town / "manifest.json").is_file():
         print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
-        sys.exit(2)
+        return 2
     meta, members = final_models(study, args.town)
     saved = json.loads((study / "study.json").read_text())["train"]
     step = {"alpha": saved["alpha"], "L": saved["L"]}
@@ -177,6 +183,7 @@ def main() -> None:
         print(f"| {d} | {r['states']} | {r['true_mean']} | " + " | ".join(str(r[n]["corr"]) for n in names) + " |")
     print(f"| all drivers | {pooled['true'].shape[0]} | {[round(float(x), 2) for x in pooled['true'].mean(0)]} | "
           + " | ".join(str(overall[n]) for n in names) + " |")
+    return 0
 
 
 def scatter(pooled: dict[str, np.ndarray], path: str, town: str) -> None:
@@ -203,4 +210,4 @@ def scatter(pooled: dict[str, np.ndarray], path: str, town: str) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

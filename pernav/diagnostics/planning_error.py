@@ -23,7 +23,8 @@ on the true simulator too, as its own method ``retime[KEY=VALUE ...]@true``; wit
 its ``retime@true`` episodes were driven with; ``--resume`` refuses (exit 2) to add ``retime@true`` episodes
 under other defaults (files from before 2026-11-24 record none and used ``delay`` 3).
 
-Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/planning_error.py [--routes 5] [--paper-routes 2]
+Run (or ``pernav diagnose planning ...``, the same options):
+OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m pernav.diagnostics.planning_error [--routes 5] [--paper-routes 2]
 [--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
 [--plot PNG] [--planner-option KEY=VALUE ...]
 """
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from itertools import cycle, product
 from pathlib import Path
@@ -93,8 +95,9 @@ def _same_defaults(recorded: dict | None, current: dict) -> bool:
     return {**current, **kept} == current
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """The command line (``argv``: its arguments, default ``sys.argv[1:]``); bad input exits 2 (``SystemExit``)."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--routes", type=int, default=5, help="routes 0..N-1 of each town")
     ap.add_argument("--paper-routes", type=int, default=2, help="routes for paper@true (slow: a full tree)")
     ap.add_argument("--samples", type=int, default=1, help="re-seeded simulator copies per imagination")
@@ -106,7 +109,7 @@ def main() -> None:
                     "(default: --json with .png)")
     ap.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
                     help="also drive retime@true with these options (pernav.planner.PLANNER_DEFAULTS); repeatable")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     bad = [d for d in args.drivers if d not in PANEL]
     if bad:
         ap.error(f"unknown driver {bad[0]!r}; choose from {', '.join(PANEL)}")
@@ -149,7 +152,8 @@ def main() -> None:
                            "episodes": episodes}, fh, indent=1)
     print(comparison_table(episodes))
     scatter(episodes, args.plot or str(Path(args.json).with_suffix(".png")))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
