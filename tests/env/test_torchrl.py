@@ -6,15 +6,14 @@ import functools
 
 import pytest
 import torch
+from navigation_helpers import FAST, TOWN1, S
 from tensordict import TensorDictBase
 from torchrl.data import Categorical, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv, check_env_specs
 
 from pernav.env.torchrl_env import INFO_DTYPES, explore_module, make_torchrl_env, oracle_module
+from pernav.trainer.collect import history_env
 from pernav.transforms import HistoryWindow
-
-S = 14
-FAST = {"n_traffic": 2}
 
 
 def _env(route: int = 1, time_limit_factor: float | None = None, adaptive_speed: bool = False):
@@ -175,3 +174,8 @@ def test_history_window_one_hot_actions() -> None:
     assert a[:, 1, 5:].argmax(-1).tolist() == [1, 3] and not a[:, 2, 5:].any()
     with pytest.raises(ValueError):
         t.next_window(w, torch.tensor([1, 4]), nxt)
+
+
+def test_real_env_specs_with_history() -> None:
+    check_env_specs(history_env(*TOWN1, config=FAST, seed=0))
+    check_env_specs(history_env("Town1", {"route": 1}, config={**FAST, "adaptive_speed": True}, seed=0, K=3))

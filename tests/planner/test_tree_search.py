@@ -1,37 +1,25 @@
-"""Components of the method used on their own: planner vs brute force, masks in a
-real env, replay windows, the meta-gradient through U(P, tau), save/load, the imagined env, the docs.
-
-Small models (hidden (16, 16) or less) wherever the size does not matter; everything is seeded.
+"""The paper's TreeSearchPlanner on small random models: its search equals a brute-force enumeration of every
+allowed sequence (route or state goals, with or without the mask, bonus and penalty), a beam that keeps every node
+equals the exhaustive search, the mask keeps it silent where no junction is ahead (on made-up goals and in the real
+Town1 and Town2), and it runs as a TorchRL collector's policy.
 """
 
 from __future__ import annotations
 
 import itertools
-import re
-from pathlib import Path
 
 import pytest
 import torch
+from navigation_helpers import FAST, TOWN1, S
+from navigation_helpers import seeded_model as _model
 from tensordict import TensorDict
 from torchrl.collectors import Collector
-from torchrl.envs import check_env_specs
 
 from pernav.env.planning import TURN_REACH
-from pernav.model import DynamicsModel, adapt, multistep_loss
+from pernav.model import DynamicsModel
 from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
 from pernav.planner import TreeSearchPlanner
-from pernav.trainer import RoundBuffers
 from pernav.trainer.collect import history_env
-
-S = 14
-DOCS = Path(__file__).resolve().parents[2] / "docs" / "components.md"
-TOWN1 = ("Town1", {"route": 0, "user": "user1"})
-FAST = {"n_traffic": 2}
-
-
-def _model(seed: int, n_actions: int = 7, K: int = 5, hidden: tuple[int, ...] = (16, 16)) -> DynamicsModel:
-    torch.manual_seed(seed)
-    return DynamicsModel(n_actions=n_actions, K=K, hidden=hidden)
 
 
 def _planner(model: DynamicsModel, **kwargs) -> TreeSearchPlanner:
@@ -90,7 +78,7 @@ def _brute_force(model: DynamicsModel, history, goals, plan, mask, *, bonus: flo
     return seqs[best], float(cost[best])
 
 
-# ----- 1. planner == brute force ------------------------------------------------------------------------
+# ----- planner == brute force ------------------------------------------------------------------------
 @pytest.mark.parametrize("goal_source,shift_decay", [("route", 0.0), ("state", 0.0), ("state", 0.25)])
 @pytest.mark.parametrize("n_actions,H,use_mask", [(7, 4, True), (7, 4, False), (7, 5, True),
                                                   (21, 3, True), (21, 3, False)])
@@ -133,7 +121,7 @@ def test_planner_bonus_and_penalty_matter() -> None:
     assert not fined.any()
 
 
-# ----- 2. beam == exhaustive when it keeps every node -----------------------------------------------------
+# ----- beam == exhaustive when it keeps every node -----------------------------------------------------
 @pytest.mark.parametrize("n_actions,H", [(7, 4), (21, 3)])
 def test_wide_beam_equals_exhaustive(n_actions: int, H: int) -> None:
     model = _model(1, n_actions=n_actions)
@@ -148,7 +136,7 @@ def test_wide_beam_equals_exhaustive(n_actions: int, H: int) -> None:
         assert narrow[1] >= full[1] - 1e-4 and narrow[2] < full[2]
 
 
-# ----- 3. no turn prompts without a junction ahead -----------------------------------------------------
+# ----- no turn prompts without a junction ahead -----------------------------------------------------
 def test_masked_planner_stays_silent_without_junction() -> None:
     """Goals placed where repeating "turn left" (1) would take the car: the unmasked search prompts, the
     masked one (or a penalized one) stays silent when the mask allows only silence."""
@@ -204,174 +192,3 @@ def test_planner_as_collector_policy() -> None:
         assert batch.numel() == 4
         allowed = batch["action_mask"].reshape(-1, 5, 7)[torch.arange(4), 0, batch["action"].reshape(-1)]
         assert allowed.all()
-
-
-# ----- 4. replay windows never cross a trajectory end ---------------------------------------------------
-def test_buffer_windows_stay_inside_one_trajectory() -> None:
-    L = 5
-    buffers = RoundBuffers(L=L, capacity=1000, seed=0)
-    lengths = [7, 5, 12, 30, 6, 19]
-    for marker, T in enumerate(lengths):
-        obs = torch.zeros(T, S)
-        obs[:, 0] = torch.arange(T, dtype=torch.float32)
-        obs[:, 1] = float(marker)
-        traj = TensorDict({"observation": obs, "action": torch.randint(7, (T,)), "history": torch.zeros(T, 5, 21),
-                           ("next", "observation"): obs + 1}, [T])
-        buffers.add(marker % 2, traj, tau=marker < 2)
-    for round_ in (0, 1):
-        windows = buffers.sample(round_, 400)
-        assert windows.shape == (400, L)
-        step, marker = windows["observation"][..., 0], windows["observation"][..., 1]
-        assert (marker == marker[:, :1]).all()
-        assert (windows["traj"] == windows["traj"][:, :1]).all()
-        assert (step.diff(dim=1) == 1).all()
-        assert (windows["round"] == round_).all()
-        assert set(marker[:, 0].long().tolist()) == {m for m in range(len(lengths)) if m % 2 == round_}
-        ends = torch.tensor(lengths)[marker[:, -1].long()]
-        assert (step[:, -1] < ends).all()
-
-
-# ----- 5. the meta-gradient through U(P, tau) -------------------------------------------------------------
-def _meta_problem(seed: int = 0, T: int = 9, B: int = 3, L: int = 3):
-    model = _model(seed, K=3, hidden=(8,)).double()
-    g = torch.Generator().manual_seed(seed)
-
-    def transitions(*shape):
-        return TensorDict({"history": torch.randn(*shape, 3, 21, generator=g, dtype=torch.float64),
-                           "action": torch.randint(7, shape, generator=g),
-                           "observation": torch.randn(*shape, S, generator=g, dtype=torch.float64),
-                           ("next", "observation"): torch.randn(*shape, S, generator=g, dtype=torch.float64)},
-                          list(shape))
-
-    params = TensorDict.from_module(model).detach().clone()
-    for key in params.keys(True, True):
-        if key[0] == "net":  # the MLP's weights and biases; the normalization buffers stay constant
-            params.get(key).requires_grad_()
-    return model, params, transitions(T), transitions(B, L)
-
-
-def _outer(model, params, tau, batch, key, first_order: bool = False):
-    def f(tensor):
-        p = params.copy()
-        p.set(key, tensor)
-        adapted = adapt(model, tau, alpha=0.05, L=3, first_order=first_order, params=p)
-        return multistep_loss(model, batch, params=adapted)
-    return f
-
-
-def test_meta_gradient_matches_finite_differences() -> None:
-    model, params, tau, batch = _meta_problem()
-    for key in (("net", "0", "bias"), ("net", "2", "weight")):
-        theta = params.get(key).detach().clone().requires_grad_()
-        assert torch.autograd.gradcheck(_outer(model, params, tau, batch, key), (theta,), eps=1e-6, atol=1e-6)
-
-
-def test_first_order_drops_the_second_order_term() -> None:
-    model, params, tau, batch = _meta_problem(seed=1)
-    key = ("net", "0", "weight")
-    theta = params.get(key).detach().clone().requires_grad_()
-    second, = torch.autograd.grad(_outer(model, params, tau, batch, key)(theta), theta)
-    first, = torch.autograd.grad(_outer(model, params, tau, batch, key, first_order=True)(theta), theta)
-    # first order by hand: the adaptation gradient detached
-    p = params.copy()
-    p.set(key, theta)
-    keys = [k for k in p.keys(True, True) if p.get(k).requires_grad]
-    grads = torch.autograd.grad(multistep_loss(model, _windows(tau, 3), params=p), [p.get(k) for k in keys])
-    adapted = p.copy()
-    for k, gk in zip(keys, grads, strict=True):
-        adapted.set(k, p.get(k) - 0.05 * gk.detach())
-    manual, = torch.autograd.grad(multistep_loss(model, batch, params=adapted), theta)
-    assert torch.allclose(first, manual, rtol=1e-10, atol=1e-12)
-    assert not torch.allclose(first, second, rtol=1e-3, atol=1e-6)
-
-
-def _windows(tau, L):
-    """The L-slices that tile tau (adapt's default, stride L)."""
-    index = torch.arange(0, tau.shape[0] - L + 1, L)[:, None] + torch.arange(L)[None]
-    return tau[index]
-
-
-# ----- 6. save / load ---------------------------------------------------------------------------------
-def test_round_buffers_save_load(tmp_path) -> None:
-    buffers = RoundBuffers(L=4, capacity=200, seed=3)
-    g = torch.Generator().manual_seed(0)
-    for i, T in enumerate([10, 8, 15]):
-        buffers.add(i // 2, TensorDict({"observation": torch.randn(T, S, generator=g),
-                                        "action": torch.randint(7, (T,), generator=g),
-                                        "history": torch.randn(T, 5, 21, generator=g),
-                                        ("next", "observation"): torch.randn(T, S, generator=g)}, [T]),
-                    tau=i != 1)
-    buffers.sample(0, 3)  # the generator has moved: the saved state must be the current one
-    buffers.save(tmp_path / "rb")
-    loaded = RoundBuffers.load(tmp_path / "rb")
-    assert loaded.rounds == buffers.rounds and loaded.n_traj == buffers.n_traj and loaded.L == buffers.L
-    for r in buffers.rounds:
-        assert (loaded.data(r) == buffers.data(r)).all()
-        assert (loaded.tau(r) == buffers.tau(r)).all()
-    for r in (0, 1, 0):
-        assert (loaded.sample(r, 6) == buffers.sample(r, 6)).all()
-
-
-def test_dynamics_state_dict_round_trip(tmp_path) -> None:
-    env = history_env(*TOWN1, config=FAST, seed=0)
-    from pernav.env.torchrl_env import explore_module
-
-    data = env.rollout(30, policy=explore_module())
-    model = _model(5)
-    model.fit_normalization(data["history"], data["action"], data["next", "observation"])
-    assert not torch.equal(model.in_std, torch.ones_like(model.in_std))
-    torch.save({"config": model.config(), "state": model.state_dict()}, tmp_path / "model.pt")
-    ckpt = torch.load(tmp_path / "model.pt")
-    twin = DynamicsModel(**ckpt["config"])
-    twin.load_state_dict(ckpt["state"])
-    for name in ("in_mean", "in_std", "out_mean", "out_std"):
-        assert torch.equal(getattr(twin, name), getattr(model, name))
-    with torch.no_grad():
-        assert torch.equal(twin(data["history"], data["action"]), model(data["history"], data["action"]))
-
-
-# ----- 7. the imagined env ------------------------------------------------------------------------------
-def test_imagined_rollout_equals_stepping_by_hand() -> None:
-    model = _model(6)
-    env = ImaginedNavigationEnv(make_world_model(model))
-    g = torch.Generator().manual_seed(0)
-    B, T = 3, 4
-    history = torch.randn(B, 5, 21, generator=g)
-    start = TensorDict({"observation": history[:, -1, :S].clone(), "history": history}, [B])
-    actions = torch.randint(7, (T, B), generator=g)
-    with torch.no_grad():
-        td = env.rollout(T, auto_reset=False, tensordict=start.clone(), break_when_any_done=False,
-                         actions=list(actions))
-        h = history
-        for t in range(T):
-            state = model(h, actions[t])
-            prev_goal = h[:, -1, 9:11]
-            h = model.next_window(h, actions[t], state)
-            assert torch.equal(td["action"][:, t], actions[t])
-            assert torch.allclose(td["next", "observation"][:, t], state)
-            assert torch.allclose(td["next", "history"][:, t], h)
-            reward = -((state[:, :2] - prev_goal) ** 2).sum(-1, keepdim=True)
-            assert torch.allclose(td["next", "reward"][:, t], reward)
-
-
-def test_real_env_specs_with_history() -> None:
-    check_env_specs(history_env(*TOWN1, config=FAST, seed=0))
-    check_env_specs(history_env("Town1", {"route": 1}, config={**FAST, "adaptive_speed": True}, seed=0, K=3))
-
-
-# ----- docs -------------------------------------------------------------------------------------------
-def _doc_blocks() -> list[str]:
-    return re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
-
-
-@pytest.mark.parametrize("index", range(7))
-def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch, capfd) -> None:
-    """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it):
-    it writes nothing into the current folder and prints only what it prints itself (no library chatter)."""
-    blocks = _doc_blocks()
-    assert len(blocks) == 7  # a new example: add it to the range above
-    monkeypatch.chdir(tmp_path)
-    exec(compile(blocks[index], f"{DOCS.name}[block {index}]", "exec"), {"__name__": "__docs__"})  # noqa: S102
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
-    printed = capfd.readouterr().out.splitlines()
-    assert len(printed) == blocks[index].count("print("), printed
