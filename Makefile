@@ -23,7 +23,7 @@ study: $(STAMP)
 
 # every test and every module's doctests (about 6 minutes on 2 cores)
 test: $(STAMP)
-	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist worksteal --doctest-modules tests pernav
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist load --maxschedchunk 2 --doctest-modules tests pernav
 
 # the inner loop: everything but the tests marked slow (under 90 s on 2 cores)
 test-fast: $(STAMP)

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from filelock import FileLock
@@ -41,23 +43,35 @@ def without_timing(results: dict) -> dict:
     return json.loads(json.dumps({k: v for k, v in results.items() if k != "timing"}))
 
 
-def shared_study(tmp_path_factory, name: str, towns: tuple[str, ...] = ("Town1",), workers: int = 1) -> Path:
-    """The smoke preset's study of ``towns`` with ``workers``, run once per test session in a folder that the
-    pytest-xdist workers share (each waits on a file lock while the first runs it): the tests that compare an
-    interrupted, resumed, parallel or Ray-run study against it do not each run it again, and a module's tests
-    spread over both workers do not run their module's study twice. Returns the study folder."""
-    from pernav.study import preset, run_study
-
+def shared_folder(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder that ``build(folder)`` fills once per test session, in a place that the pytest-xdist workers share:
+    each waits on a file lock while the first builds it, so that tests spread over both workers do not each run
+    the same study again. Returns the folder."""
     base = tmp_path_factory.getbasetemp()
     shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # this session's workers share it
     out = shared / name
     with FileLock(str(shared / f"{name}.lock")):
-        if not (out / "results.json").exists():
-            cfg = preset("smoke")
-            cfg.towns = list(towns)
-            results = run_study(cfg, out, workers=workers)
-            assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
+        if not (shared / f"{name}.done").exists():
+            shutil.rmtree(out, ignore_errors=True)  # what a build that failed left
+            out.mkdir(parents=True)
+            build(out)
+            (shared / f"{name}.done").touch()
     return out
+
+
+def shared_study(tmp_path_factory, name: str, towns: tuple[str, ...] = ("Town1",), workers: int = 1) -> Path:
+    """The smoke preset's study of ``towns`` with ``workers``, run once per test session (:func:`shared_folder`):
+    the tests that compare an interrupted, resumed, parallel or Ray-run study against it do not each run it
+    again. Returns the study folder."""
+    from pernav.study import preset, run_study
+
+    def build(out: Path) -> None:
+        cfg = preset("smoke")
+        cfg.towns = list(towns)
+        results = run_study(cfg, out, workers=workers)
+        assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
+
+    return shared_folder(tmp_path_factory, name, build)
 
 
 def smoke_reference(tmp_path_factory) -> dict:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import kill_then_resume
+from study_helpers import kill_then_resume, shared_folder
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession
@@ -24,14 +24,18 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 METHODS = ["explore", "sysid", "adapt", "adapt_speed", "hindsight"]
 
 
-@pytest.fixture(scope="module")
-def drives(tmp_path_factory) -> Path:
+def _record_drives(folder: Path) -> Path:
     """Two short headless drives of Town1 by the scripted bot (routes 0 and 1), saved as ``pernav play`` does."""
-    folder = tmp_path_factory.mktemp("recorded")
     for name, route, steps in (("alice_0", 0, 30), ("alice_1", 1, 24)):
         result = PlaySession("Town1", route, n_traffic=2, seed=route).run(max_steps=steps)
         save_drive(result.trajectory, result.metrics, folder / "drives", name)
     return folder
+
+
+@pytest.fixture(scope="module")
+def drives(tmp_path_factory) -> Path:
+    """This worker's own copy of the recorded drives (its tests write schedules beside them)."""
+    return _record_drives(tmp_path_factory.mktemp("recorded"))
 
 
 def _schedule(folder: Path, rows: list[dict], name: str = "schedule.json") -> Path:
@@ -63,13 +67,16 @@ def test_drives_resolve_relative_to_the_schedule_file_in_order(drives):
 
 
 @pytest.fixture(scope="module")
-def mixed_study(drives, tmp_path_factory) -> Path:
-    """The smoke study of the MIXED schedule (recorded and simulated rounds), run once for the tests below."""
-    out = tmp_path_factory.mktemp("mixed") / "study"
-    schedule = _schedule(drives, MIXED)
-    assert main(["study", "--preset", "smoke", "--out", str(out), "--schedule", str(schedule),
-                 "--methods", *METHODS]) == 0
-    return out
+def mixed_study(tmp_path_factory) -> Path:
+    """The smoke study of the MIXED schedule (recorded and simulated rounds), run once per test session for the
+    tests below (on its own copy of the drives, which are the same: the bot and the world are seeded)."""
+
+    def build(folder: Path) -> None:
+        schedule = _schedule(_record_drives(folder), MIXED)
+        assert main(["study", "--preset", "smoke", "--out", str(folder / "study"), "--schedule", str(schedule),
+                     "--methods", *METHODS]) == 0
+
+    return shared_folder(tmp_path_factory, "mixed_study", build) / "study"
 
 
 @pytest.mark.slow
@@ -111,7 +118,7 @@ def test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_same_
     simulated rounds after it give what the uninterrupted study gave."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--out", str(out), "--schedule",
-           str(drives / "schedule.json"), "--methods", *METHODS]
+           str(_schedule(drives, MIXED)), "--methods", *METHODS]
     got = kill_then_resume(cmd, out, "Town1", index=1)  # entry 1 is "Person warm-up" (recorded, offline)
     reference = json.loads((mixed_study / "results.json").read_text())
     for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
