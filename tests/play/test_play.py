@@ -582,7 +582,7 @@ class Keys(KeyboardControls):
         if screen == "pause":
             self.paused_times.add(self.session.nav.world.time)
             self.pause_polls += 1
-            if self.pause_polls == 30:  # a second paused
+            if self.pause_polls == 30:  # thirty polls paused
                 post(pygame.K_p)
         if screen == "result":
             post(pygame.K_RETURN)
@@ -590,7 +590,7 @@ class Keys(KeyboardControls):
     def read(self, car):
         return self.bot.read(car)
 
-session = PlaySession("Town1", 0, n_traffic=2, window=True, realtime=False, ready=True, countdown=1.0)
+session = PlaySession("Town1", 0, n_traffic=2, window=True, realtime=False, ready=True, countdown=1.0, fps=5)
 session.controls = Keys(session)
 result = session.run()
 session.close()
