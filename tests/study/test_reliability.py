@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import smoke_reference, without_timing
+from study_helpers import shared_study, smoke_reference, without_timing
 
 import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
@@ -64,11 +65,9 @@ def test_sigkill_at_random_moments_then_resume_gives_the_same_results(reference,
 
 
 @pytest.mark.slow
-def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path, capsys):
-    out = tmp_path / "study"
-    cfg = preset("smoke")
-    cfg.methods = ["explore", "adapt"]
-    run_study(cfg, out, report=False)
+def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path_factory, tmp_path, capsys):
+    out = tmp_path / "study"  # a copy of the finished smoke study, its checkpoints then damaged
+    shutil.copytree(shared_study(tmp_path_factory, "smoke_reference"), out)
     ckpt = next((out / "checkpoints" / "Town1").glob("entry_*"))
     state = ckpt / "state.pt"
     data = bytearray(state.read_bytes())
@@ -77,38 +76,18 @@ def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path, capsys):
     before = (out / "results.json").read_text()
     from pernav.study import checkpoints
 
-    cfg_json = json.loads((out / "study.json").read_text())
-    assert cfg_json["methods"] == ["explore", "adapt"]
     with pytest.raises(checkpoints.CheckpointError, match="state.pt"):
         checkpoints.load_checkpoint(out / "checkpoints" / "Town1", {})
     # through the CLI: one line naming the file, exit code 2, results untouched
     argv = ["study", "--preset", "smoke", "--out", str(out), "--resume"]
-    capsys.readouterr()  # drop the first run's progress bars
-    code = _main_with_methods(argv, ["explore", "adapt"])
+    capsys.readouterr()
+    code = main(argv)
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert code == 2 and len(errors) == 1 and "state.pt" in errors[0] and "corrupted" in errors[0]
     assert (out / "results.json").read_text() == before
     (out / "checkpoints" / "Town1" / "manifest.json").write_text("{not json")
-    assert _main_with_methods(argv, ["explore", "adapt"]) == 2
+    assert main(argv) == 2
     assert "manifest.json" in capsys.readouterr().err
-
-
-def _main_with_methods(argv: list[str], methods: list[str]) -> int:
-    """``pernav study`` with the smoke preset restricted to ``methods`` (as the folder's study was run)."""
-    import pernav.study as study
-
-    original = study.preset
-
-    def restricted(name):
-        cfg = original(name)
-        cfg.methods = methods
-        return cfg
-
-    study.preset = restricted  # what `pernav study` reads
-    try:
-        return main(argv)
-    finally:
-        study.preset = original
 
 
 @pytest.mark.slow
