@@ -103,12 +103,11 @@ def test_a_late_answering_driver_is_prompted_earlier_and_one_inside_the_slack_as
 
 
 @pytest.mark.slow
-def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path) -> None:
-    from pernav.study import run_study
+def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path_factory) -> None:
+    from study_helpers import shared_study
 
-    cfg = preset("smoke")
-    cfg.methods = ["explore", "timing", "oracle"]
-    results = run_study(cfg, tmp_path / "s", report=False)
+    assert "timing" in preset("smoke").methods  # the shared smoke study runs every method
+    results = json.loads((shared_study(tmp_path_factory, "smoke_reference") / "results.json").read_text())
     beliefs = results["diagnostics"]["Town1"]["timing"]["beliefs"]
     assert set(beliefs) == {"Online 0", "Online 8"}
     for it in results["iterations"]:
