@@ -27,7 +27,7 @@ test: $(STAMP)
 
 # the inner loop: everything but the tests marked slow (under 90 s on 2 cores)
 test-fast: $(STAMP)
-	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist worksteal -m "not slow" --doctest-modules tests pernav
+	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules tests pernav
 
 lint: $(STAMP)
 	$(BIN)/ruff check pernav recipes tests
