@@ -175,6 +175,17 @@ def test_bad_study_folders(study_dir, tmp_path):
     assert isinstance(study_policy(study_dir, "Town1")[0], StudyPolicy)
 
 
+def _exits_2_and_writes_nothing(command: str, args: list[str], study_dir, tmp_path, capsys) -> None:
+    """``pernav COMMAND ARGS`` (``{missing}`` and ``{study}`` filled in) exits 2 with one error line and records
+    nothing."""
+    rec = tmp_path / "rec"
+    args = [a.format(missing=tmp_path / "missing", study=study_dir) for a in args]
+    assert main([command, *args, "--headless", "--no-audio", "--record", str(rec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"pernav {command}: error:") and err.count("\n") == 1 and "Traceback" not in err
+    assert not rec.exists()
+
+
 @pytest.mark.parametrize("args", [
     ["--study", "{missing}", "--town", "Town1", "--routes", "0", "1"],
     ["--study", "{study}", "--town", "Town2", "--routes", "0", "1"],  # a town the study did not run
@@ -187,12 +198,7 @@ def test_bad_study_folders(study_dir, tmp_path):
     ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--learner", "sysid"],  # not in the study
 ])
 def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
-    rec = tmp_path / "rec"
-    args = [a.format(missing=tmp_path / "missing", study=study_dir) for a in args]
-    assert main(["personalize", *args, "--headless", "--no-audio", "--record", str(rec)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("pernav personalize: error:") and err.count("\n") == 1 and "Traceback" not in err
-    assert not rec.exists()
+    _exits_2_and_writes_nothing("personalize", args, study_dir, tmp_path, capsys)
 
 
 @pytest.mark.parametrize("args", [
@@ -206,12 +212,7 @@ def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, t
     ["--policy", "study", "--study", "{study}", "--learner", "nope"],
 ])
 def test_cli_play_study_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
-    rec = tmp_path / "rec"
-    args = [a.format(missing=tmp_path / "missing", study=study_dir) for a in args]
-    assert main(["play", *args, "--headless", "--no-audio", "--record", str(rec)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("pernav play: error:") and err.count("\n") == 1 and "Traceback" not in err
-    assert not rec.exists()
+    _exits_2_and_writes_nothing("play", args, study_dir, tmp_path, capsys)
 
 
 def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, capsys):

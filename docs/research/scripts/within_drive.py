@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from tensordict.nn import TensorDictModule
 
+from pernav.diagnostics.stats import gap_closed, paired_ratio
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
 from pernav.model.timing import timing_features
@@ -106,30 +107,23 @@ def main() -> None:
     report(rows)
 
 
-def _boot(values: np.ndarray, stat, n: int = 2000) -> tuple[float, float, float]:
-    rng = np.random.default_rng(0)
-    idx = rng.integers(0, len(values), (n, len(values)))
-    draws = [stat(values[i]) for i in idx]
-    return stat(values), float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5))
-
-
 def report(rows: list[dict]) -> None:
+    """Mean cost per class; the gap closed (late) and the cost ratio to explore (on time), with the project's
+    paired bootstrap CIs (:mod:`pernav.diagnostics.stats`)."""
     methods = [m for m in ("explore", "oracle", "timing", "guarded", "watch", "tau+watch") if m in rows[0]]
     for label, keep in (("late", True), ("on time", False)):
         sel = [r for r in rows if r["late"] == keep]
         if not sel:
             continue
-        M = np.array([[r[m] for m in methods] for r in sel])
-        line = ", ".join(f"{m} {M[:, i].mean():.0f}" for i, m in enumerate(methods))
-        print(f"{label} ({len(sel)} episodes): {line}")
-        for i, m in enumerate(methods[2:], 2):
+        cost = {m: np.array([r[m] for r in sel]) for m in methods}
+        print(f"{label} ({len(sel)} episodes): " + ", ".join(f"{m} {c.mean():.0f}" for m, c in cost.items()))
+        for m in methods[2:]:
             if keep:
-                est = _boot(M, lambda x, i=i: (x[:, 0].mean() - x[:, i].mean()) / max(x[:, 0].mean() - x[:, 1].mean(),
-                                                                                    1e-9))
-                print(f"   {m}: gap closed {est[0]:.0%} [{est[1]:.0%}, {est[2]:.0%}]")
+                est = gap_closed(cost["explore"], cost[m], cost["oracle"])
+                print(f"   {m}: gap closed {est['mean']:.0%} [{est['low']:.0%}, {est['high']:.0%}]")
             else:
-                est = _boot(M, lambda x, i=i: x[:, i].mean() / x[:, 0].mean())
-                print(f"   {m}: / explore {est[0]:.3f} [{est[1]:.3f}, {est[2]:.3f}]")
+                est = paired_ratio(cost[m], cost["explore"])
+                print(f"   {m}: / explore {est['mean']:.3f} [{est['low']:.3f}, {est['high']:.3f}]")
 
 
 if __name__ == "__main__":
