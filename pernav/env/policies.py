@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from pernav.world.constants import audio_duration
+from pernav.world.constants import WAYPOINT_SPACING, audio_duration
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
 from pernav.world.routing import Manoeuvre, Route
 from pernav.world.simulation import SPEED_RING
@@ -31,6 +31,8 @@ from pernav.world.simulation import SPEED_RING
 TURN = {"left": 1, "right": 2}
 PREPARE = {"left": 3, "right": 4}
 ENTER, KEEP_LEFT, EXIT = 5, 6, 2
+DROPPED = (1, 2, 3, 4)  # what a driver drops on entering a junction box when heard before it
+GUARD_RING_SPEED = SPEED_RING  # the speed the exit guard assumes on a ring (the car slows to it)
 
 
 @dataclass
@@ -66,7 +68,10 @@ class PromptPolicy:
     ``driver`` is what the navigation believes about the user; ``margin`` seconds of slack. ``fastest``, when
     the navigation is unsure of its user, is the quickest driver it may be speaking to: the rules say a prompt as
     early as ``driver`` needs it, but never so early that ``fastest`` would act on it at a junction before the one
-    meant (a roundabout exit to pass) or forget a "prepare" before committing. ``None``: ``driver`` itself."""
+    meant (a roundabout exit to pass) or forget a "prepare" before committing; and never before the car is inside
+    the last junction box before the one meant (a prompt heard before a box is taken for that junction and dropped:
+    explore's short leads rarely meet this, a slow belief's often). ``None``: ``driver`` itself, and no such waits
+    (explore and the oracle)."""
 
     driver: Driver
     margin: float = 0.8
@@ -113,8 +118,17 @@ class PromptPolicy:
         if before is None or before.kind == "enter":
             return True
         fast = self.fastest or self.driver  # the quickest listener must have passed ``before`` when it acts
+        if self.fastest is not None:  # unsure of the user: the car slows to the ring's speed meanwhile, so the
+            v = min(v, GUARD_RING_SPEED)  # listener acts sooner and commits closer than at this speed
         active_at = view.progress + v * (audio_duration(EXIT) + fast.reaction_time)
         return active_at >= before.s - v * fast.decision_time + 1.0
+
+    def _box_before(self, view: NavView, target: Manoeuvre) -> bool:
+        """Is there a junction box before ``target`` that the car may not have entered yet? A driver takes a turn or
+        "prepare" heard before entering a junction (a bend too) for that junction, and drops it there. ``progress``
+        is the nearest waypoint's: a junction counts as passed up to half a spacing early, hence the margin."""
+        return any(m.kind in (*TURN, "straight") and view.progress - 2 * WAYPOINT_SPACING < m.s < target.s
+                   for m in view.route.manoeuvres)
 
     def __call__(self, view: NavView) -> int:
         d = self.driver
@@ -145,6 +159,8 @@ class PromptPolicy:
         elif m.kind == "exit" and self._exit_due(view, m, view.previous_manoeuvre()):
             desired = EXIT
         if desired == 0:
+            return 0
+        if desired in DROPPED and self.fastest is not None and self._box_before(view, target):  # else dropped
             return 0
         if desired in view.played_for(target):  # said already: hold it (no replay) or stay silent
             return desired if view.last_action == desired else 0

@@ -214,3 +214,31 @@ def test_the_guarded_belief_names_a_quick_driver_beside_the_same_slow_belief(fit
     assert belief["fastest"]["decision_time"] <= explore_policy().driver.decision_time
     unguarded = TimingModel().load_state_dict({**fitted.state_dict(), "guard": False})
     assert unguarded.belief(tau) == {k: v for k, v in belief.items() if k != "fastest"}
+
+
+def _dropped(town: str, user: str, belief: dict, routes: range) -> int:
+    """Prompts ``user`` dropped on entering a junction box over ``routes``, the env's belief policy driving."""
+    from pernav.env.navigation import NavigationEnv
+
+    dropped = 0
+    for route in routes:
+        env = NavigationEnv(town, config={"n_traffic": 2, "belief": belief})
+        _, info = env.reset(seed=route, options={"route": route, "user": user})
+        done = False
+        while not done:
+            _, _, terminated, truncated, info = env.step(info["belief_action"])
+            done = terminated or truncated
+        dropped += env.world.events.discarded
+    return dropped
+
+
+def test_the_guarded_belief_waits_until_the_car_is_in_the_junction_box_before_the_one_meant() -> None:
+    # a slow belief says the next junction's prompt as soon as the last one is passed, or before a bend; a driver who
+    # hears it before entering that box takes it for that junction and drops it. The guard waits; explore's timing
+    # (no ``fastest``) is unchanged
+    slow = {"reaction_time": 2.8, "decision_time": 3.0}
+    guarded = {**slow, "fastest": {"reaction_time": 0.6, "decision_time": 1.3}}
+    unguarded_drops = _dropped("Town1", "user4", slow, range(4))
+    assert unguarded_drops > 0
+    assert _dropped("Town1", "user4", guarded, range(4)) < unguarded_drops
+    assert belief_policy({}).fastest is None

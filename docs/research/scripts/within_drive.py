@@ -66,6 +66,8 @@ def main() -> None:
     ap.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
                     help="the timing learner's options (pernav.study.config.TIMING_DEFAULTS)")
     ap.add_argument("--methods", nargs="+", default=["explore", "oracle", "timing", "guarded", "watch", "tau+watch"])
+    ap.add_argument("--quantiles", nargs="*", type=float, default=[],
+                    help="also drive the guarded learner with its belief at each of these quantiles (variants q<Q>)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     cfg = preset("personal")
@@ -95,7 +97,9 @@ def main() -> None:
                         ("guarded", info_action_module("belief_action"), guarded_belief),
                         ("watch", watch_module(False), late_belief),
                         ("tau+watch", watch_module(tau_missed), late_belief))
-            for name, policy, belief in (v for v in variants if v[0] in args.methods):
+            variants += tuple((f"q{q:g}", info_action_module("belief_action"), _at_quantile(model, q, tau))
+                              for q in args.quantiles)
+            for name, policy, belief in (v for v in variants if v[0] in args.methods or v[0].startswith("q")):
                 t = runner.episode(cfg, args.town, entry, route, seed, policy, belief=belief)
                 row[name] = float(t[-1]["next", "tracking_cost"])
                 row[name + "_collisions"] = int(t[-1]["next", "collisions"])
@@ -107,10 +111,21 @@ def main() -> None:
     report(rows)
 
 
+def _at_quantile(model, quantile: float, tau) -> dict:
+    """The guarded learner's belief read from ``tau`` with its ``quantile`` set to ``quantile``."""
+    saved = model.quantile
+    model.quantile = quantile
+    try:
+        return model.belief(tau)
+    finally:
+        model.quantile = saved
+
+
 def report(rows: list[dict]) -> None:
     """Mean cost per class; the gap closed (late) and the cost ratio to explore (on time), with the project's
     paired bootstrap CIs (:mod:`pernav.diagnostics.stats`)."""
     methods = [m for m in ("explore", "oracle", "timing", "guarded", "watch", "tau+watch") if m in rows[0]]
+    methods += [m for m in rows[0] if m.startswith("q") and not m.endswith("_collisions")]
     for label, keep in (("late", True), ("on time", False)):
         sel = [r for r in rows if r["late"] == keep]
         if not sel:
