@@ -13,8 +13,10 @@ whether to leave explore at all: only when it moves the "turn" prompt earlier by
 driver the evidence places inside explore's slack keeps explore's timing). The belief then acted on is raised
 ``quantile`` residual SDs above that mean: a late prompt costs far more than an early one. With ``guard`` the belief
 also names the quickest driver the evidence allows, so that the re-timed rule never says a prompt so early that
-such a driver acts on it at the junction before the one meant (a roundabout exit to pass): the early prompts are
-for the slow driver the belief fears, not a trap for the quick one it may be.
+such a driver acts on it at the junction before the one meant (a roundabout exit to pass), and the rule, unsure of
+its user, says a turn or "prepare" only once the car is inside the last junction box before the one meant (a
+prompt heard before a box is taken for that junction and dropped): the early prompts are for the slow driver the
+belief fears, not a trap for the quick one it may be.
 
 Example:
     >>> import torch

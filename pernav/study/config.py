@@ -27,7 +27,8 @@ COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choi
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 # the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
 # ridge penalty, the residual SDs its belief adds to the predicted mean, the gate (s earlier than explore), and the
-# guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon)
+# guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon, nor
+# before the car is inside the last junction box before the one meant)
 TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0, "guard": 1}
 
 

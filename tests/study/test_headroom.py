@@ -203,6 +203,10 @@ def test_the_guard_keeps_an_early_exit_prompt_after_a_quick_drivers_commit_at_th
     assert unguarded < guarded <= explore
     assert guarded + 8.0 * (audio(2) + fastest["reaction_time"]) >= before.s - 8.0 * fastest["decision_time"] + 1.0
     assert unguarded + 8.0 * (audio(2) + fastest["reaction_time"]) < before.s - 8.0 * fastest["decision_time"]
+    # approaching faster than the ring's speed, the car slows to it before the exit to pass: the guard assumes the
+    # ring's speed (8 m/s), at which the quick listener acts sooner and commits closer than at 11 m/s
+    fast_approach = _first_exit_prompt(belief_policy({**slow, "fastest": fastest}), route, v=11.0)
+    assert fast_approach + 8.0 * (audio(2) + fastest["reaction_time"]) >= before.s - 8.0 * fastest["decision_time"] + 1
     with pytest.raises(ValueError, match="unknown fastest field 'speed'"):
         belief_policy({**slow, "fastest": {"speed": 1.0}})
 

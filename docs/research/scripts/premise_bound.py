@@ -33,8 +33,8 @@ import numpy as np
 from pernav.env.policies import PromptPolicy, explore_policy
 from pernav.env.policies import late_share as p_late  # one home: the analytic lateness
 from pernav.study.schedule import paper_schedule
+from pernav.world.constants import audio_duration
 from pernav.world.drivers import resolve
-from pernav.world.layout import audio_duration
 
 TURN = 1  # "turn left": audio durations of the two turns are equal
 CALIBRATION = "docs/figures/world_v2/judged/calibration.json"
