@@ -30,7 +30,7 @@ test-fast: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules tests pernav
 
 lint: $(STAMP)
-	$(BIN)/ruff check pernav recipes tests
+	$(BIN)/ruff check pernav recipes tests docs/research/scripts
 
 clean:
 	rm -rf $(VENV)

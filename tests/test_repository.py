@@ -24,7 +24,8 @@ def test_ruff_is_clean_including_the_60_statement_limit() -> None:
     ruff = shutil.which("ruff") or str(Path(sys.executable).parent / "ruff")
     if not Path(ruff).exists():
         pytest.skip("ruff is not installed")
-    run = subprocess.run([ruff, "check", "pernav", "recipes", "tests"], cwd=ROOT, capture_output=True, text=True)
+    run = subprocess.run([ruff, "check", "pernav", "recipes", "tests", "docs/research/scripts"], cwd=ROOT,
+                         capture_output=True, text=True)
     assert run.returncode == 0, run.stdout[-3000:]
     assert "PLR0915" in (ROOT / "pyproject.toml").read_text()  # the function-length rule is one of ruff's checks
 

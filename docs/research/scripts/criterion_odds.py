@@ -34,8 +34,8 @@ import numpy as np
 
 from pernav.study.compare import HEADROOM, compare
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from pool_seeds import _load  # noqa: E402  (a sibling recipe: one loader for every recipe that reads studies)
+sys.path.insert(0, str(Path(__file__).resolve().parents[3] / "recipes"))
+from pool_seeds import _load  # noqa: E402  (a recipe: one loader for every script that reads studies)
 
 CLAUSES = ("below", "ci", "gap", "collisions", "flat", "flat_each", "all", "all_strict")
 
