@@ -6,13 +6,15 @@ evaluation routes (same seed for every policy: paired episodes) with each of the
 
 - ``explore``, ``oracle``;
 - ``belief``: the learner as the code now runs it (the guard with the box wait and the ring speed);
-- ``first``: the learner with the first guard only (no box wait, the exit guard at the approach speed).
+- ``first``: the learner with the first guard only (no box wait, the exit guard at the approach speed);
+- ``turn_only``: the learner re-timing its "turn" prompts only: a "prepare" no earlier than explore's (a next step
+  measured here, not in the package).
 
 It prints per class (late / on time, from the profile) the mean tracking cost and the prompts dropped on entering a
 junction box per route (``Events.discarded``), the gap closed (late) and the cost ratio to explore (on time) with
 95 % paired bootstrap CIs (:mod:`pernav.diagnostics.stats`).
 
-Run (one town per process; about 8 min for 60 drivers on one core; docs/personal.md used population seeds 5252 for
+Run (one town per process; about 10 min for 60 drivers on one core; docs/personal.md used population seeds 5252 for
 Town1 and 5151 for Town3):
     .venv/bin/python docs/research/scripts/dropped_prompts.py Town1 60 5252 [--out rows.json]
 """
@@ -29,21 +31,32 @@ import torch
 import pernav.env.policies as rules
 from pernav.diagnostics.stats import gap_closed, paired_ratio
 from pernav.env.navigation import NavigationEnv
-from pernav.env.policies import lateness
+from pernav.env.policies import PromptPolicy, explore_policy, lateness
 from pernav.env.torchrl_env import explore_module
 from pernav.study import runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
 from pernav.world.drivers import Population, resolve
 
-VARIANTS = ("explore", "oracle", "belief", "first")
+VARIANTS = ("explore", "oracle", "belief", "first", "turn_only")
+_PREPARE_LEAD = PromptPolicy.prepare_lead
+
+
+def _prepare_no_earlier_than_explore(self: PromptPolicy, v: float, lead: float) -> float:
+    if self.fastest is None:  # explore and the oracle: their own rule
+        return _PREPARE_LEAD(self, v, lead)
+    explore = explore_policy()
+    return min(_PREPARE_LEAD(self, v, lead), explore.prepare_lead(v, explore.turn_lead(v)))
 
 
 def drive(town: str, entry: Entry, route: int, seed: int, belief: dict, variant: str) -> dict:
-    """One paired episode; ``first`` switches the guard's box wait and ring speed off for its duration."""
+    """One paired episode; ``first`` switches the guard's box wait and ring speed off for its duration,
+    ``turn_only`` holds the learner's "prepare" to explore's lead."""
     saved = rules.DROPPED, rules.GUARD_RING_SPEED
     if variant == "first":
         rules.DROPPED, rules.GUARD_RING_SPEED = (), float("inf")
+    if variant == "turn_only":
+        PromptPolicy.prepare_lead = _prepare_no_earlier_than_explore
     try:
         env = NavigationEnv(town, config={"n_traffic": preset("personal").n_traffic, "belief": belief})
         _, info = env.reset(seed=seed, options={"route": route, "user": entry.profile(), "context": entry.context()})
@@ -54,6 +67,7 @@ def drive(town: str, entry: Entry, route: int, seed: int, belief: dict, variant:
             done = terminated or truncated
     finally:
         rules.DROPPED, rules.GUARD_RING_SPEED = saved
+        PromptPolicy.prepare_lead = _PREPARE_LEAD
     return {"cost": info["tracking_cost"], "collisions": info["collisions"], "dropped": env.world.events.discarded}
 
 
@@ -93,7 +107,7 @@ def main() -> None:
         dropped = {v: float(np.mean([r[f"{v}_dropped"] for r in sel])) for v in VARIANTS}
         print(f"{label} ({len(sel)} episodes): " + ", ".join(f"{v} {cost[v].mean():.0f} (dropped {dropped[v]:.2f})"
                                                              for v in VARIANTS))
-        for v in ("belief", "first"):
+        for v in ("belief", "first", "turn_only"):
             est = gap_closed(cost["explore"], cost[v], cost["oracle"]) if want else paired_ratio(cost[v],
                                                                                                  cost["explore"])
             print(f"   {v}: {'gap closed' if want else '/ explore'} {est['mean']:.3f} [{est['low']:.3f}, "
