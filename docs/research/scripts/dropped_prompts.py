@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import random
+import sys
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -32,11 +33,13 @@ import pernav.env.policies as rules
 from pernav.diagnostics.stats import gap_closed, paired_ratio
 from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import PromptPolicy, explore_policy, lateness
-from pernav.env.torchrl_env import explore_module
 from pernav.study import runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
-from pernav.world.drivers import Population, resolve
+from pernav.world.drivers import resolve
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from within_drive import development_drivers  # noqa: E402  (one loop over development drivers)
 
 VARIANTS = ("explore", "oracle", "belief", "first", "turn_only")
 _PREPARE_LEAD = PromptPolicy.prepare_lead
@@ -82,12 +85,9 @@ def main() -> None:
     cfg = preset("personal")
     cfg.seed = 900
     model = runner._fit_timing(cfg, args.town)
-    population, rng = Population(seed=args.population_seed), random.Random(args.population_seed)
     rows = []
-    for k in range(args.drivers):
-        profile, context = population.sample()
-        entry = Entry(f"p{k}", "online", profile.to_dict(), **context.to_dict())
-        tau = runner.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, explore_module())
+    for k, profile, context, entry, tau, rng in development_drivers(cfg, args.town, args.drivers,
+                                                                     args.population_seed):
         belief = model.belief(tau)
         late = lateness(resolve(profile, context))["excess"] >= 0.05
         for r in range(2):

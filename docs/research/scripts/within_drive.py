@@ -55,6 +55,17 @@ def watch_module(start_late: bool) -> TensorDictModule:
                                                          "wrong_turns"], out_keys=["action"])
 
 
+def development_drivers(cfg, town: str, drivers: int, population_seed: int):
+    """Yield ``(k, profile, context, entry, tau, rng)`` for ``drivers`` population drivers, each with its explore tau;
+    ``rng`` then draws the driver's evaluation routes (the research scripts on development drivers share this)."""
+    population, rng = Population(seed=population_seed), random.Random(population_seed)
+    for k in range(drivers):
+        profile, context = population.sample()
+        entry = Entry(f"p{k}", "online", profile.to_dict(), **context.to_dict())
+        yield k, profile, context, entry, runner.episode(cfg, town, entry, rng.randrange(10), 1000 + k,
+                                                         explore_module()), rng
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("town")
@@ -74,12 +85,9 @@ def main() -> None:
     cfg.seed = args.study_seed
     cfg.timing.update({k: float(v) for k, v in (o.split("=", 1) for o in args.timing_option)})
     model = runner._fit_timing(cfg, args.town)
-    population, rng = Population(seed=args.population_seed), random.Random(args.population_seed)
     rows = []
-    for k in range(args.drivers):
-        profile, context = population.sample()
-        entry = Entry(f"p{k}", "online", profile.to_dict(), **context.to_dict())
-        tau = runner.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, explore_module())
+    for k, profile, context, entry, tau, rng in development_drivers(cfg, args.town, args.drivers,
+                                                                     args.population_seed):
         last = tau[-1]["next"]
         tau_missed = int(last["missed_turns"]) + int(last["wrong_turns"]) > 0
         features = timing_features(tau)
