@@ -107,6 +107,7 @@ def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path_factor
     from study_helpers import shared_study
 
     assert "timing" in preset("smoke").methods  # the shared smoke study runs every method
+    assert "timing" in preset("default").methods  # it joined `make study` after its sized judging (docs/personal.md)
     results = json.loads((shared_study(tmp_path_factory, "smoke_reference") / "results.json").read_text())
     beliefs = results["diagnostics"]["Town1"]["timing"]["beliefs"]
     assert set(beliefs) == {"Online 0", "Online 8"}
