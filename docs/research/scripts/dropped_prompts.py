@@ -74,8 +74,11 @@ def drive(town: str, entry: Entry, route: int, seed: int, belief: dict, variant:
     return {"cost": info["tracking_cost"], "collisions": info["collisions"], "dropped": env.world.events.discarded}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def development_setup(description: str):
+    """``(args, cfg, model)`` of a development-driver check: its arguments (town, drivers, population seed, --out), the
+    personal preset at study seed 900 and the timing model the study fits for the town (shared by the scripts
+    that drive development drivers with the learner's variants)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("town")
     ap.add_argument("drivers", type=int)
     ap.add_argument("population_seed", type=int)
@@ -84,7 +87,11 @@ def main() -> None:
     torch.set_num_threads(1)
     cfg = preset("personal")
     cfg.seed = 900
-    model = runner._fit_timing(cfg, args.town)
+    return args, cfg, runner._fit_timing(cfg, args.town)
+
+
+def main() -> None:
+    args, cfg, model = development_setup(__doc__.splitlines()[0])
     rows = []
     for k, profile, context, entry, tau, rng in development_drivers(cfg, args.town, args.drivers,
                                                                      args.population_seed):

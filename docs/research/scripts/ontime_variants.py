@@ -16,40 +16,28 @@ Town1 and 7272 for Town3):
 
 from __future__ import annotations
 
-import argparse
 import json
 import random
 import sys
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from pernav.diagnostics.stats import paired_ratio
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module
 from pernav.study import runner
-from pernav.study.config import preset
 from pernav.study.schedule import Entry
 from pernav.world.drivers import Population, resolve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from dropped_prompts import drive  # noqa: E402  (one episode of a variant)
+from dropped_prompts import development_setup, drive  # noqa: E402  (shared setup; one episode of a variant)
 
 VARIANTS = ("explore", "belief", "turn_only")
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("town")
-    ap.add_argument("drivers", type=int)
-    ap.add_argument("population_seed", type=int)
-    ap.add_argument("--out")
-    args = ap.parse_args()
-    torch.set_num_threads(1)
-    cfg = preset("personal")
-    cfg.seed = 900
-    model = runner._fit_timing(cfg, args.town)
+    args, cfg, model = development_setup(__doc__.splitlines()[0])
     population, rng = Population(seed=args.population_seed), random.Random(args.population_seed)
     rows, k = [], 0
     while len(rows) < 2 * args.drivers:
