@@ -55,7 +55,12 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "time_limit_factor": 2.0,  # episode truncated at factor x nominal route time + 30 s
     "nominal_speed": 10.0,  # m/s used for a route's nominal time
     "arrival_radius": 8.0,  # m from the destination that counts as arrived
-    "reroute_distance": 8.0,  # m off the route before the navigation re-plans
+    # when the navigation re-plans: "branch", in the step the car enters a lane the route does not continue on (the
+    # car matched to the lane graph, as a car navigation does); "distance", the rule before: once the car is
+    # ``reroute_distance`` m off the route, or 3x that while on a road the route uses (a wrong turn then cost
+    # seconds of driving away before the re-plan)
+    "reroute": "branch",
+    "reroute_distance": 8.0,  # m off the route before the navigation re-plans (also "branch"'s lost-car fallback, x3)
     "plan_horizon": 5,  # steps of the planning context in info (goals, explore plan, action mask)
     "plan_shift": 2,  # explore-plan time shifts the planner may match (steps each way)
     "future_steps": 18,  # steps of the explore policy's future plan in info (the re-timing planner's input)
@@ -125,6 +130,8 @@ class NavigationEnv(gym.Env):
         unknown = sorted(set(config or {}) - set(DEFAULT_CONFIG))
         if unknown:
             raise ValueError(f"unknown config key {unknown[0]!r}; allowed: {', '.join(DEFAULT_CONFIG)}")
+        if (config or {}).get("reroute", "branch") not in ("branch", "distance"):
+            raise ValueError(f"config 'reroute' must be 'branch' or 'distance', not {config['reroute']!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r} not supported; use 'rgb_array'")
         self.config = {**DEFAULT_CONFIG, **(config or {})}
@@ -211,6 +218,7 @@ class NavigationEnv(gym.Env):
         self._played: list[tuple[int, float, int]] = []  # (instruction, route progress, reroutes)
         self.tracking_cost = 0.0
         self.missed_turns = self.wrong_turns = self.reroutes = 0
+        self._rerouted_in: str | None = None  # the cross junction of the last re-plan (None: none, or elsewhere)
         self.completed = False
         self._explore_past: list[int] = []  # explore instructions of the past steps (planning context)
         self.goal = self.route.goal_waypoint(self.progress, 0.0)
@@ -290,12 +298,52 @@ class NavigationEnv(gym.Env):
         """Track progress; re-plan from where the car is when it has left the route."""
         ego = self.world.ego
         self.progress, dist = self.route.project(ego.position, hint=self.progress)
-        # on a road of the route near the car's progress (a route may pass the same place twice:
-        # a road of the route far from the projected point is not "on route")
-        on_route = ego.path[0][:2] in self.route.roads and dist < 3 * self.config["reroute_distance"]
-        if on_route or dist < self.config["reroute_distance"]:
+        if not self._left_route(dist):
             return
-        # classify against the route's manoeuvre the driver decided differently on
+        box = self.town.lane_junction.get(ego.lane_index)
+        box = box if box is not None and self.town.junctions[box].kind == "cross" else None  # a ring's exits: each its own
+        # a swerve back in the cross junction of the last re-plan is the same wrong branch, not a second one
+        if self.config["reroute"] == "distance" or box is None or box != self._rerouted_in:
+            self._count_wrong_branch()
+        if self.config["reroute"] == "branch":
+            start, start_s = ego.lane_index, float(ego.s)  # the new route starts on the lane the car is on
+        else:  # the rule before: from the first lane after the box the car is in
+            start = next((lane for lane in ego.path if self.town.lane_junction.get(lane) is None), ego.path[-1])
+            start_s = ego.s if start == ego.path[0] else 0.0
+        try:
+            self.route = plan_route(self.town, start, start_s, [(self.goal_lane, self.goal_s)],
+                                    name=self.route.name)
+        except RouteError:  # nothing reaches the goal from here (cannot happen in the built-in towns)
+            return
+        self.reroutes += 1
+        self._rerouted_in = box
+        # the new route starts where the car is: a detour may pass back along this road on its other
+        # side, and an unhinted projection would latch onto that (progress then runs backwards)
+        self.progress, _ = self.route.project(ego.position, hint=0.0)
+
+    def _left_route(self, dist: float) -> bool:
+        """Has the car left the route? ``dist``: metres from the route's nearest waypoint."""
+        ego, limit = self.world.ego, self.config["reroute_distance"]
+        if self.config["reroute"] == "distance":
+            # on a road of the route near the car's progress (a route may pass the same place twice:
+            # a road of the route far from the projected point is not "on route")
+            on_route = ego.path[0][:2] in self.route.roads and dist < 3 * limit
+            return not (on_route or dist < limit)
+        return dist >= 3 * limit or not self.on_route_road(ego.lane_index)
+
+    def on_route_road(self, lane: tuple) -> bool:
+        """Is ``lane`` (the lane the car is on) on a road the route takes at the car's progress? A lane beside the
+        route's on the same road counts (the car changes lane on the way); a road the route takes far before or
+        after this point does not (a route may pass the same place twice)."""
+        route, margin = self.route, 2 * self.config["reroute_distance"]
+        return any(lane[:2] == road[:2] and route.lane_start[i] - margin <= self.progress
+                   <= route.lane_start[i] + self.town.lane(road).length + margin
+                   for i, road in enumerate(route.lanes))
+
+    def _count_wrong_branch(self) -> None:
+        """A missed turn or a wrong turn: classified against the route's manoeuvre the driver decided differently
+        on (the world's record of the branch taken), else a wrong turn."""
+        ego = self.world.ego
         taken = {"stay": "pass"}
         for m in self.route.manoeuvres:
             choice = ego.last_choice.get(m.node)
@@ -303,20 +351,8 @@ class NavigationEnv(gym.Env):
                 missed = (m.kind in ("left", "right") and choice == "straight") or (m.kind == "exit" and choice == "stay")
                 self.missed_turns += int(missed)
                 self.wrong_turns += int(not missed)
-                break
-        else:
-            self.wrong_turns += 1
-        start = next((lane for lane in ego.path if self.town.lane_junction.get(lane) is None), ego.path[-1])
-        start_s = ego.s if start == ego.path[0] else 0.0
-        try:
-            self.route = plan_route(self.town, start, start_s, [(self.goal_lane, self.goal_s)],
-                                    name=self.route.name)
-        except RouteError:  # nothing reaches the goal from here (cannot happen in the built-in towns)
-            return
-        self.reroutes += 1
-        # the new route starts where the car is: a detour may pass back along this road on its other
-        # side, and an unhinted projection would latch onto that (progress then runs backwards)
-        self.progress, _ = self.route.project(ego.position, hint=0.0)
+                return
+        self.wrong_turns += 1
 
     def extra_distance(self) -> float:
         """Metres driven beyond the planned route: distance driven plus what is left to the destination,
