@@ -27,7 +27,7 @@ import numpy as np
 
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
 from pernav.env.policies import NavView, PromptPolicy, belief_policy, explore_policy, oracle_policy
-from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK
+from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, audio_duration
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -45,6 +45,11 @@ from pernav.world.simulation import World
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
 
 STATE_DIM = 14
+#: what the navigation senses of the car at each of the world's frames between two decisions (the ``"frames"`` entry,
+#: ``[frequency, len(FRAME_KEYS)]``): speed (m/s), acceleration (m/s^2), brake pedal (0-1), steering (-1..1 of the
+#: vehicle's lock), signed offset from the centre of the lane the car is in (m; it jumps by a lane's width
+#: when the car changes lane). A car's own sensors give these; nothing of the driver's profile or intent.
+FRAME_KEYS = ("speed", "acceleration", "brake", "steering", "lane_offset")
 STATE_KEYS = ("x", "y", "z", "vx", "vy", "vz", "heading", "junction", "roundabout", "goal_x", "goal_y",
               "steering", "reverse", "brake")
 REPLAY_AFTER = 15  # an unchanged instruction is replayed after this many steps (paper §5.1)
@@ -217,6 +222,8 @@ class NavigationEnv(gym.Env):
         self.last_instruction, self.repeat = 0, 0
         self._played: list[tuple[int, float, int]] = []  # (instruction, route progress, reroutes)
         self.tracking_cost = 0.0
+        self.frames = np.zeros((self.config["frequency"], len(FRAME_KEYS)), dtype=np.float32)
+        self.prompt_start = self.prompt_end = -1.0  # simulated time a prompt played this step began / its audio ended
         self.missed_turns = self.wrong_turns = self.reroutes = 0
         self._rerouted_in: str | None = None  # the cross junction of the last re-plan (None: none, or elsewhere)
         self.completed = False
@@ -237,7 +244,10 @@ class NavigationEnv(gym.Env):
         instruction, playback = self.decode(action)
         self._explore_past = [*self._explore_past, self._explore(self.nav_view())][-max(self.config["plan_shift"], 1):]
         played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
+        self.prompt_start = self.prompt_end = -1.0
         if played:
+            self.prompt_start = float(self.world.time)
+            self.prompt_end = self.prompt_start + audio_duration(instruction, playback)
             self.world.ego.hear(instruction, playback, self.world.time)
             self._played.append((instruction, self.progress, self.reroutes))
             if self.on_prompt is not None:
@@ -247,10 +257,13 @@ class NavigationEnv(gym.Env):
             self.repeat += 1
         self.last_instruction = instruction
         before = self.world.ego.position.copy()
-        for _ in range(self.config["frequency"]):
+        frames = np.empty_like(self.frames)
+        for k in range(self.config["frequency"]):
             self.world.frame()
+            frames[k] = self._sense()
             if self.on_frame is not None:
                 self.on_frame()
+        self.frames = frames
         self.odometer += float(np.linalg.norm(self.world.ego.position - before))
         self.time += 1.0
         self.world.maintain_traffic()
@@ -354,6 +367,13 @@ class NavigationEnv(gym.Env):
                 return
         self.wrong_turns += 1
 
+    def _sense(self) -> tuple[float, ...]:
+        """One frame of :data:`FRAME_KEYS`: what the car's sensors show."""
+        ego = self.world.ego
+        offset = float(ego.lane.local_coordinates(ego.position)[1])
+        return (float(ego.speed), float(ego.accel), float(ego.brake_input),
+                float(ego.steer / ego.driver.vehicle.max_steering), offset)
+
     def extra_distance(self) -> float:
         """Metres driven beyond the planned route: distance driven plus what is left to the destination,
         minus the route planned at reset (a missed turn's detour shows here, not only in the tracking
@@ -402,6 +422,9 @@ class NavigationEnv(gym.Env):
             "time": self.time,
             "progress": self.progress / max(self.route.length, 1.0),
             "played": played,
+            "prompt_start": self.prompt_start,
+            "prompt_end": self.prompt_end,
+            "frames": self.frames.copy(),
             "explore_action": self.explore_action(),
             "oracle_action": self.oracle_action(),
         }

@@ -28,7 +28,7 @@ from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs import EnvBase, GymWrapper
 from torchrl.envs.gym_like import BaseInfoDictReader
 
-from pernav.env.navigation import NavigationEnv
+from pernav.env.navigation import FRAME_KEYS, NavigationEnv
 
 __all__ = [
     "INFO_DTYPES",
@@ -59,6 +59,12 @@ INFO_DTYPES: dict[str, torch.dtype] = {
     "distance_to_junction": torch.float32,
     "in_roundabout": torch.bool,
     "near_roundabout": torch.bool,
+    # what the navigation senses between decisions (docs/simulator.md, "What the navigation senses"): whether a
+    # prompt played this step, when it began and when its audio ended (simulated s; -1 when none played), and the
+    # car's frames (the "frames" array, :data:`~pernav.env.navigation.FRAME_KEYS`)
+    "played": torch.bool,
+    "prompt_start": torch.float32,
+    "prompt_end": torch.float32,
 }
 
 
@@ -143,7 +149,8 @@ def make_torchrl_env(town: str = "Town1", config: dict[str, Any] | None = None,
 
 
 def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
-    """Shapes and dtypes of the planning context in ``info`` (see :mod:`pernav.env.planning`)."""
+    """Shapes and dtypes of the array entries of ``info``: the planning context (see :mod:`pernav.env.planning`) and
+    the car's frames between decisions."""
     H, S = int(config["plan_horizon"]), int(config["plan_shift"])
     return {
         "plan_goals": ((H, 2), torch.float32),
@@ -151,6 +158,7 @@ def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tupl
         "action_mask": ((H, n_actions), torch.bool),
         "explore_future": ((int(config["future_steps"]),), torch.int64),
         "route_ahead": ((int(config["route_points"]), 2), torch.float32),
+        "frames": ((int(config["frequency"]), len(FRAME_KEYS)), torch.float32),
     }
 
 

@@ -37,7 +37,7 @@ from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 
 from pernav.model.dynamics import road_of
 
-__all__ = ["KEYS", "RoundBuffers"]
+__all__ = ["KEYS", "SENSING_KEYS", "RoundBuffers"]
 
 log = logging.getLogger("pernav.trainer")
 
@@ -58,6 +58,11 @@ def _quiet_storage() -> Iterator[None]:
 #: The entries of a transition that the model needs (everything else is dropped when stored); a trajectory with
 #: the env's ``"route_ahead"`` also keeps ``"road"``, its first ``ROAD_MAX`` road points (:func:`road_of`).
 KEYS = ("observation", "action", "history", ("next", "observation"))
+#: What the navigation sensed between decisions (:data:`pernav.env.navigation.FRAME_KEYS`), kept with a round's tau and
+#: calibration drives (under ``"next"``: step t's entries tell what happened after its action) when the trajectory
+#: has it: a belief about the driver reads it at round time. The sampled
+#: storage leaves it out (the dynamics model reads the decision steps only).
+SENSING_KEYS = ("played", "prompt_start", "prompt_end", "frames")
 
 
 class RoundBuffers:
@@ -121,10 +126,15 @@ class RoundBuffers:
         if T < self.L:
             log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
                         "round)", round_, T, self.L, self.short[round_])
-        if tau:
-            self.taus[round_] = data
-        if calibration:
-            self.calibration.setdefault(round_, []).append(data)
+        if tau or calibration:
+            kept = data.clone(False)
+            for key in SENSING_KEYS:  # what happened during each step: the "next" entries (as the env writes them)
+                if ("next", key) in trajectory.keys(True):
+                    kept["next", key] = trajectory["next", key].clone()
+            if tau:
+                self.taus[round_] = kept
+            if calibration:
+                self.calibration.setdefault(round_, []).append(kept)
 
     def tau(self, round_: int) -> TensorDictBase:
         """The adaptation trajectory of a round."""

@@ -53,3 +53,34 @@ def test_round_buffers_save_load(tmp_path) -> None:
         assert (loaded.tau(r) == buffers.tau(r)).all()
     for r in (0, 1, 0):
         assert (loaded.sample(r, 6) == buffers.sample(r, 6)).all()
+
+
+def test_what_the_navigation_sensed_survives_the_buffers_and_a_recorded_drive(tmp_path) -> None:
+    from pernav.env.navigation import FRAME_KEYS
+    from pernav.env.torchrl_env import explore_module
+    from pernav.trainer.collect import drive, history_env
+    from pernav.trainer.drives import load_drive, save_drive
+
+    tau = drive(history_env("Town1", {"route": 0}, config={"n_traffic": 2}, seed=0), explore_module(), max_steps=25)
+    step = tau["next"]  # what happened during each step, after its action
+    assert step["frames"].shape == (25, 10, len(FRAME_KEYS))
+    played = step["played"]
+    assert played.any() and bool((step["prompt_start"][played] >= 0).all())
+    assert bool((step["prompt_end"][played] > step["prompt_start"][played]).all())
+    assert bool((step["prompt_start"][~played] == -1).all())
+    # a prompt is said at the start of the step of the action that played it
+    assert torch.equal(step["prompt_start"][played], step["time"][played] - 1.0)
+    # the frames are the car's: the first column is its speed, which the step's last observation also shows
+    speed = step["observation"][:, 3:5].norm(dim=-1)
+    assert torch.allclose(step["frames"][:, -1, 0], speed, atol=1e-3)
+
+    buffers = RoundBuffers(L=5)
+    buffers.add(0, tau, tau=True)
+    buffers.save(tmp_path / "rb")
+    loaded = RoundBuffers.load(tmp_path / "rb").tau(0)
+    for key in ("frames", "prompt_start", "prompt_end", "played"):
+        assert torch.equal(loaded["next", key], step[key]), key
+    assert ("next", "frames") not in buffers.sample(0, 2).keys(True)  # the model's windows stay lean
+
+    path = save_drive(tau, {"steps": 25}, tmp_path, "drive")
+    assert torch.equal(load_drive(path)["next", "frames"], step["frames"])
