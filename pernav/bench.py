@@ -493,12 +493,51 @@ def bench_timing(quick: bool = False) -> dict[str, Any]:
     }
 
 
+def bench_belief(quick: bool = False) -> dict[str, Any]:
+    """The belief learner (:mod:`pernav.model.belief`) inside a drive: per step, the tracker's update (reading each
+    answer whose window closed; the step's work beside the world's frames) and the prompt decision of the rule
+    re-timed for the belief it gives, against explore's rule on the same states. The detector is untrained (its
+    cost does not depend on its weights)."""
+    import time
+
+    from pernav.env.navigation import NavigationEnv
+    from pernav.env.policies import belief_policy, explore_policy
+    from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
+
+    env = NavigationEnv("Town3", config={"n_traffic": 8})
+    _, info = env.reset(seed=0, options={"route": 1, "user": "user3"})
+    tracker = BeliefTracker(AnswerDetector(), ReactionBelief(0.3, 0.4))
+    explore = explore_policy()
+    update_ms, moved_ms, decision_ms, explore_ms = [], [], [], []
+    for _ in range(60 if quick else 150):
+        action = int(info["explore_action"])
+        _, _, terminated, truncated, info = env.step(action)
+        t0 = time.perf_counter()
+        moved = tracker.observe(action, bool(info["played"]), info["prompt_end"], info["frames"], info["time"])
+        rule = belief_policy(tracker.fields()) if moved else None
+        (moved_ms if moved else update_ms).append(time.perf_counter() - t0)
+        view = env.nav_view()
+        decision_ms.append(_timed(rule or belief_policy(tracker.fields()), view)[0])
+        explore_ms.append(_timed(explore, view)[0])
+        if terminated or truncated:
+            break
+    return {
+        "update_ms_median": _median_ms(update_ms),
+        "answer_read_ms_median": _median_ms(moved_ms) if moved_ms else None,
+        "answers_read": len(moved_ms),
+        "decision_ms_median": _median_ms(decision_ms),
+        "decision_vs_explore_ratio": round(_median_ms(decision_ms) / max(_median_ms(explore_ms), 1e-9), 2),
+        "target": "decision_ms_median <= 15, answer_read_ms_median <= 50",
+    }
+
+
 BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, "play": bench_play,
-              "timing": bench_timing}
+              "timing": bench_timing, "belief": bench_belief}
 
 
 def run_benchmarks(which: str = "all", quick: bool = False, screenshots: str | None = None) -> dict[str, dict[str, Any]]:
-    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``) or ``all``; returns {name: figures}.
+    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``, ``belief``) or ``all``; returns
+    {name: figures}.
     ``screenshots``: a folder for the play benchmark's picture of each view."""
     if which != "all" and which not in BENCHMARKS:
         raise ValueError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)} or all")

@@ -35,7 +35,8 @@ from pernav.world.files import key_values
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
-BENCH_CHOICES = ("sim", "planner", "train", "play", "timing")  # pernav.bench.BENCHMARKS (not imported here: it is slow)
+# pernav.bench.BENCHMARKS (not imported here: it is slow)
+BENCH_CHOICES = ("sim", "planner", "train", "play", "timing", "belief")
 MAX_TRAFFIC = 64  # traffic cars of `pernav drive` (each is spawned by rejection sampling around the driver)
 INTERRUPTED = 130  # exit code after Ctrl-C (128 + SIGINT, as a shell reports it), in every command
 DIAGNOSTICS = {"model": "model_check", "planning": "planning_error"}  # pernav diagnose WHICH: pernav.diagnostics.*

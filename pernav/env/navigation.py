@@ -26,7 +26,14 @@ import gymnasium as gym
 import numpy as np
 
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
-from pernav.env.policies import NavView, PromptPolicy, belief_policy, explore_policy, oracle_policy
+from pernav.env.policies import (
+    BeliefSource,
+    NavView,
+    PromptPolicy,
+    belief_policy,
+    explore_policy,
+    oracle_policy,
+)
 from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, audio_duration
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
@@ -72,7 +79,9 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "route_points": 96,  # points of the planned route ahead in info (every 3 m from 15 m behind the car)
     # what the navigation believes of its user (a mapping of Driver fields over the average driver's, e.g. a
     # learner's estimate of its reaction and decision times): info then carries "belief_action", the explore
-    # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. None: off
+    # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. A BeliefSource (e.g.
+    # pernav.model.belief.BeliefTracker) is a belief updated within the drive from each prompt's answer: a copy of it
+    # follows the drive (``env.tracker``) and info also carries "belief_reaction", its reaction time now. None: off
     "belief": None,
 }
 
@@ -135,6 +144,10 @@ class NavigationEnv(gym.Env):
         unknown = sorted(set(config or {}) - set(DEFAULT_CONFIG))
         if unknown:
             raise ValueError(f"unknown config key {unknown[0]!r}; allowed: {', '.join(DEFAULT_CONFIG)}")
+        belief = (config or {}).get("belief")
+        if belief is not None and not isinstance(belief, (dict, BeliefSource)):
+            raise ValueError(f"config 'belief' must be a mapping of driver fields or a BeliefSource, not "
+                             f"{type(belief).__name__}")
         if (config or {}).get("reroute", "branch") not in ("branch", "distance"):
             raise ValueError(f"config 'reroute' must be 'branch' or 'distance', not {config['reroute']!r}")
         if render_mode not in (None, "rgb_array"):
@@ -210,7 +223,10 @@ class NavigationEnv(gym.Env):
             self.context = ctx if isinstance(ctx, Context) else Context(**ctx)
         self.driver = resolve(self.profile, self.context)
         self._oracle = oracle_policy(self.driver)
-        self._belief = None if self.config["belief"] is None else belief_policy(self.config["belief"])
+        belief = self.config["belief"]
+        self.tracker = belief.copy() if isinstance(belief, BeliefSource) else None
+        fields = self.tracker.fields() if self.tracker is not None else belief
+        self._belief = None if fields is None else belief_policy(fields)
         self.route = custom or self.town.routes[self.route_index]
         self.goal_lane, self.goal_s = self.route.lanes[-1], self.route.end_s
         world_seed = int(self.np_random.integers(2**31 - 1))
@@ -276,6 +292,12 @@ class NavigationEnv(gym.Env):
         self.completed = bool(arrived)
         truncated = not arrived and self.time >= self.time_limit
         self.goal = self.route.goal_waypoint(self.progress, float(ego.speed))
+        if self.tracker is not None:  # the belief reads this step's answer, and the rest once the drive ends
+            moved = self.tracker.observe(instruction, played, self.prompt_end, self.frames, self.time)
+            if arrived or truncated:
+                moved = self.tracker.finish() or moved
+            if moved:
+                self._belief = belief_policy(self.tracker.fields())
         return cost, played, bool(arrived), bool(truncated)
 
     def branch(self, seed: int | None = None) -> NavigationEnv:
@@ -296,6 +318,8 @@ class NavigationEnv(gym.Env):
         memo.update({id(self.route): self.route, id(self.driver): self.driver, id(self.profile): self.profile,
                      id(self._explore): self._explore, id(self._oracle): self._oracle,
                      id(self._belief): self._belief})
+        if self.tracker is not None and hasattr(self.tracker, "detector"):  # fixed weights: shared, not copied
+            memo[id(self.tracker.detector)] = self.tracker.detector
         # the viewer, the observers and a person's controls stay with this env: the copy is drawn by no one and
         # driven by the simulated driver (a planner's branch imagines the driver it models)
         detached = (self._viewer, self.on_prompt, self.on_frame, self.world.ego.external)
@@ -430,6 +454,8 @@ class NavigationEnv(gym.Env):
         }
         if self._belief is not None:
             info["belief_action"] = self.policy_action(self._belief)
+        if self.tracker is not None:
+            info["belief_reaction"] = self._belief.driver.reaction_time  # what the prompts are timed for now
         info.update(self.junction_info())
         info.update(self.planning_info(info["in_roundabout"]))
         return info

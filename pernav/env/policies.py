@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -171,6 +171,25 @@ class PromptPolicy:
 
 #: the driver fields the prompt rules read (what a belief about a user may set)
 BELIEF_FIELDS = ("reaction_time", "decision_time", "turn_speed", "comfort_decel", "memory")
+
+
+@runtime_checkable
+class BeliefSource(Protocol):
+    """A belief about the user that the navigation updates as a drive goes on (``NavigationEnv``'s
+    ``config["belief"]``; :class:`pernav.model.belief.BeliefTracker` is one). It reads what the navigation played and
+    what it sensed of the car, never the driver's profile."""
+
+    def copy(self) -> BeliefSource:
+        """A copy for a new drive of the same user: the belief so far, no frames of this drive."""
+
+    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float) -> bool:
+        """One step's prompt and the car's frames; True when the belief moved."""
+
+    def finish(self) -> bool:
+        """The drive ended; True when the belief moved."""
+
+    def fields(self) -> dict[str, Any]:
+        """What :func:`belief_policy` re-times the rules for now."""
 
 
 def explore_policy() -> PromptPolicy:

@@ -141,7 +141,11 @@ def make_torchrl_env(town: str = "Town1", config: dict[str, Any] | None = None,
     """
     nav = NavigationEnv(town=town, config=config)
     env = NavigationTorchRLEnv(nav, reset_options=options, device=device)
-    dtypes = {**INFO_DTYPES, "belief_action": torch.int64} if nav.config["belief"] is not None else None
+    dtypes = None
+    if nav.config["belief"] is not None:
+        dtypes = {**INFO_DTYPES, "belief_action": torch.int64}
+        if not isinstance(nav.config["belief"], dict):  # a belief updated within the drive: what it says now
+            dtypes["belief_reaction"] = torch.float32
     env.set_info_dict_reader(NavigationInfoReader(dtypes, arrays=planning_arrays(nav.config, nav.n_actions)))
     if seed is not None:
         env.set_seed(seed)

@@ -20,9 +20,10 @@ from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
 
-__all__ = ["COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig", "preset"]
+__all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig",
+           "preset"]
 
-METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "oracle")
+METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 # the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
@@ -30,6 +31,10 @@ LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and t
 # guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon, nor
 # before the car is inside the last junction box before the one meant)
 TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0, "guard": 1}
+# the belief learner (pernav.model.belief): simulated population drivers whose prompts' answers train its detector per
+# town, the detector's timing noise (log s) and outlier share in the likelihood, the posterior SDs above the mean that
+# the prompts are timed for, and the guard (as the timing learner's)
+BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 64, "noise": 0.15, "outlier": 0.2, "quantile": 1.0, "guard": 1}
 
 
 class PresetError(ValueError):
@@ -63,6 +68,7 @@ class StudyConfig:
     # this user's answers to a prompt's timing (train.personal_updates adapts on them; 0: none, the paper)
     calibration: int = 0
     timing: dict[str, Any] = field(default_factory=lambda: dict(TIMING_DEFAULTS))  # the timing learner's options
+    belief: dict[str, Any] = field(default_factory=lambda: dict(BELIEF_DEFAULTS))  # the belief learner's options
     seed: int = 0
 
     def entries_for(self, town: str) -> list[Entry]:
@@ -114,6 +120,13 @@ class StudyConfig:
             raise PresetError(f"unknown timing option {unknown[0]!r}; allowed: {', '.join(TIMING_DEFAULTS)}")
         if int(self.timing["offline_drivers"]) < 2 or self.timing["l2"] < 0 or self.timing["gate"] < 0:
             raise PresetError(f"timing needs offline_drivers >= 2, l2 >= 0 and gate >= 0; got {self.timing}")
+        unknown = sorted(set(self.belief) - set(BELIEF_DEFAULTS))
+        if unknown:
+            raise PresetError(f"unknown belief option {unknown[0]!r}; allowed: {', '.join(BELIEF_DEFAULTS)}")
+        b = self.belief
+        if int(b["offline_drivers"]) < 2 or b["noise"] < 0 or not 0 <= b["outlier"] < 1 or b["quantile"] < 0:
+            raise PresetError(f"belief needs offline_drivers >= 2, noise >= 0, outlier in [0, 1) and quantile >= 0; "
+                              f"got {self.belief}")
         check_recorded(self.schedule, self.towns, self.train.K)  # recorded drives: their towns and K
 
 
@@ -137,14 +150,15 @@ def _schedule(spec: Any, name: str) -> list[Entry]:
 
 
 def _preset_fields(name: str) -> dict[str, Any]:
-    """The preset's fields, its ``base`` preset's first (a preset's ``train`` and ``timing`` add to the base's)."""
+    """The preset's fields, its ``base`` preset's first (a preset's ``train``, ``timing`` and ``belief`` add to the
+    base's)."""
     fields = yaml.safe_load((PRESETS_DIR / f"{name}.yaml").read_text()) or {}
     base = fields.pop("base", None)
     if base is None:
         return fields
     merged = _preset_fields(base)
     for key, value in fields.items():
-        merged[key] = {**merged.get(key, {}), **value} if key in ("train", "timing") else value
+        merged[key] = {**merged.get(key, {}), **value} if key in ("train", "timing", "belief") else value
     return merged
 
 
@@ -156,4 +170,5 @@ def preset(name: str) -> StudyConfig:
     fields["schedule"] = _schedule(fields.get("schedule"), name)
     fields["train"] = TrainConfig(**fields.get("train", {}))
     fields["timing"] = {**TIMING_DEFAULTS, **fields.get("timing", {})}
+    fields["belief"] = {**BELIEF_DEFAULTS, **fields.get("belief", {})}
     return StudyConfig(preset=name, **fields)

@@ -27,6 +27,7 @@ job, so a town's results do not depend on which process or worker runs it.
 from __future__ import annotations
 
 import copy
+import json
 import logging
 import random
 import time
@@ -38,6 +39,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
+from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.model.timing import TARGETS as TIMING_TARGETS
@@ -49,6 +51,7 @@ from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
+from pernav.trainer.answers import fit_belief, labelled_drives
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
 from pernav.trainer.drives import load_drive
@@ -112,8 +115,8 @@ def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, A
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
         return method, 7, None, None, method
-    if method == "timing":  # explore's rule re-timed for the belief read from tau
-        return "belief", 7, None, adapted["timing"], method
+    if method in ("timing", "belief"):  # explore's rule re-timed for the belief read from tau
+        return "belief", 7, None, adapted[method], method
     learner = learners[method]
     return "mpc", learner.n_actions, learner.spec(), adapted[method], method
 
@@ -251,6 +254,9 @@ def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, rec
         if "timing" in cfg.methods:
             with _Timer(run.profile, "timing_offline_s"):
                 state["timing_model"] = _fit_timing(cfg, run.town).state_dict()
+        if "belief" in cfg.methods:
+            with _Timer(run.profile, "belief_offline_s"):
+                state["belief_model"] = _fit_belief(cfg, run.town)
         state["warm"] = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
 
 
@@ -287,6 +293,8 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
         if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
             adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
             state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
+        if "belief" in cfg.methods:  # the posterior about this round's user: its earlier rounds' taus and this one
+            adapted["belief"] = _read_tau(cfg, state, entry, tau)
     _evaluate(run, entry, adapted, record)
     _rollouts(run, entry, index, rng, adapted)
     # the online loss of adapt before the update (for the model-loss regret)
@@ -333,6 +341,8 @@ def _town_result(run: _Town) -> dict[str, Any]:
                    for name, learner in run.learners.items()}
     if "timing_beliefs" in state:
         diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
+    if "belief_rounds" in state:
+        diagnostics["belief"] = {"beliefs": state["belief_rounds"]}
     return {"town": run.town, "results": state["results"], "online_losses": state["online_losses"],
             "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
             "diagnostics": diagnostics,
@@ -414,6 +424,43 @@ def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
     model = TimingModel(l2=options["l2"], quantile=options["quantile"], gate=options["gate"],
                         guard=bool(options["guard"]))
     return model.fit(torch.stack(features), torch.stack(targets))
+
+
+def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
+    """The belief learner's offline phase: ``cfg.belief["offline_drivers"]`` simulated drivers of the population prior
+    each drive one explore route of ``town``; each heard prompt's answer window, labelled with the moment it took
+    effect (known: they are simulated), trains the :class:`~pernav.model.belief.AnswerDetector`, and their reaction
+    times give the prior (:func:`pernav.trainer.answers.fit_belief`)."""
+    options = cfg.belief
+    drives = labelled_drives(town, int(options["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
+                             derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic},
+                             progress=True)
+    detector, prior = fit_belief(drives, noise=options["noise"], outlier=options["outlier"],
+                                 quantile=options["quantile"])
+    return {"detector": detector.state_dict(), "prior": prior.state_dict()}
+
+
+def _read_tau(cfg: StudyConfig, state: dict[str, Any], entry: Entry, tau: Any) -> BeliefTracker:
+    """The belief learner's posterior about ``entry``'s user after this round's tau: the prior, or what the earlier
+    rounds of the same user left (the belief persists across drives), updated with each of tau's answers."""
+    model, user = state["belief_model"], _user_key(entry)
+    detector = AnswerDetector()
+    detector.load_state_dict(model["detector"])
+    posteriors = state.setdefault("belief_posteriors", {})
+    belief = ReactionBelief.from_state_dict(posteriors.get(user, model["prior"]))
+    tracker = BeliefTracker(detector, belief, guard=bool(cfg.belief["guard"]))
+    tracker.observe_drive(tau)
+    posteriors[user] = tracker.belief.state_dict()
+    low, high = tracker.belief.interval(0.9)
+    state.setdefault("belief_rounds", {})[entry.label] = {
+        "reaction_time": round(tracker.belief.mean_reaction(), 4), "interval": [round(low, 4), round(high, 4)],
+        "answers": tracker.belief.answers, "acted_on": tracker.fields()}
+    return tracker
+
+
+def _user_key(entry: Entry) -> str:
+    """Who drives: the entry's profile and context (a user's rounds share it; the label names the round)."""
+    return json.dumps({"profile": entry.profile().to_dict(), "context": entry.context().to_dict()}, sort_keys=True)
 
 
 def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:

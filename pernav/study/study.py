@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.study.compare import compare
-from pernav.study.config import METHODS, TIMING_DEFAULTS, StudyConfig
+from pernav.study.config import BELIEF_DEFAULTS, METHODS, TIMING_DEFAULTS, StudyConfig
 from pernav.study.parallel import init_worker, make_executor
 from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
@@ -43,7 +43,7 @@ def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
 # whose default changed what an older study did) makes the folder a different study.
 ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau": "explore", "calibration": 0, "train.ensemble": 1,
                                  "train.personal_updates": 0, "train.personal_replay": 0.0, "train.road": 0,
-                                 "train.context": 0, "timing": TIMING_DEFAULTS}
+                                 "train.context": 0, "timing": TIMING_DEFAULTS, "belief": BELIEF_DEFAULTS}
 
 
 def _difference(saved: dict[str, Any], current: dict[str, Any], prefix: str = "") -> str | None:

@@ -23,7 +23,8 @@ from pernav.env.torchrl_env import make_torchrl_env
 from pernav.model.dynamics import road_of
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "in_action_space", "to_speed_actions"]
+__all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "in_action_space", "to_speed_actions",
+           "turn_lead"]
 
 MAX_STEPS = 2000  # the env truncates far earlier (time limit); this only bounds a runaway loop
 
@@ -61,10 +62,26 @@ def episode_metrics(trajectory: TensorDictBase) -> dict[str, Any]:
         "extra_distance": round(float(last["extra_distance"]), 1),
         "completed": bool(last["completed"]),
         "steps": int(trajectory.shape[0]),
+        "turn_lead": turn_lead(trajectory),
         # the share of steps at which the policy did not play explore's action (0 for explore itself)
         "left_explore": round(float((trajectory["action"].reshape(-1) != trajectory["explore_action"].reshape(-1))
                                     .float().mean()), 4) if "explore_action" in trajectory.keys() else None,
     }
+
+
+def turn_lead(trajectory: TensorDictBase) -> float | None:
+    """The mean lead (s) of a drive's "turn" prompts: the distance to the junction when each was played over the car's
+    speed then (None without a played "turn", or a trajectory without the env's entries)."""
+    keys = trajectory.keys(True)
+    if not all(k in keys for k in ("distance_to_junction", ("next", "played"), "observation")):
+        return None
+    wide = "history" in keys and trajectory["history"].shape[-1] - trajectory["observation"].shape[-1] == 21
+    instruction = trajectory["action"].reshape(-1) // (3 if wide else 1)  # a 21-action drive: instruction * 3 + speed
+    said = trajectory["next", "played"].reshape(-1) & ((instruction == 1) | (instruction == 2))
+    if not bool(said.any()):
+        return None
+    speed = trajectory["observation"][:, 3:5].norm(dim=-1).clamp(min=1.0)
+    return round(float((trajectory["distance_to_junction"].reshape(-1) / speed)[said].mean()), 3)
 
 
 def to_speed_actions(trajectory: TensorDictBase, n_instructions: int = 7) -> TensorDictBase:

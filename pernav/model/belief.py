@@ -1,0 +1,364 @@
+"""A belief about this driver from each prompt's answer: when the car began to slow or to change lane after a
+"turn" or "prepare" prompt, read from the frames the navigation senses between decisions.
+
+A heard prompt takes effect at its audio's end plus this prompt's reaction time, drawn lognormal around the driver's
+mean reaction time ``R`` with a fixed coefficient of variation (:data:`pernav.world.drivers.REACTION_CV`). At that
+frame the car's acceleration jumps (a "prepare" slows the car toward three quarters of its cruise, a "turn" brakes
+for the turn) and a lane change makes the lane offset jump, unless a leader, a stop line or a junction already brakes
+the car, or the prompt was misheard or ignored: then there is no answer to read. So the belief is built in two parts:
+
+- :class:`AnswerDetector`, a small network that scores each frame of a prompt's answer window (its audio's end to
+  :data:`ANSWER_SPAN` seconds later, or the next prompt) as the moment the prompt took effect, against "no visible
+  answer". It is trained offline on simulated drivers of the population prior, whose moments are known (the paper's
+  offline MDPs: :func:`pernav.trainer.answers.offline_answers`); at round time it sees the frames only.
+- :class:`ReactionBelief`, an explicit likelihood on a grid of ``log R``: each answer contributes the lognormal
+  density of its candidate delays weighted by the detector, mixed with a flat density for a prompt misread or
+  unanswered. Its prior is the population's (fitted on the same offline drivers); the posterior narrows as answers
+  accumulate, within a drive (:class:`BeliefTracker`, updated after each answered prompt) and across drives (the
+  state carries over).
+
+What the prompt rules act on is the posterior's ``quantile``-SD upper value when that is later than explore's
+average driver (a late prompt costs far more than an early one), else explore's own timing; with the guard, the
+quickest driver the posterior allows too (:meth:`ReactionBelief.belief`).
+
+Example:
+    >>> import torch
+    >>> belief = ReactionBelief(prior_mean=0.3, prior_sd=0.4)
+    >>> delays = torch.tensor([2.4, 2.5, 2.6])          # candidate delays (s after the audio) of one answer
+    >>> for _ in range(5):                               # five answers, each clearly at ~2.5 s
+    ...     belief.update(delays, torch.tensor([0.05, 0.9, 0.05]), none=0.0)
+    >>> 2.2 < belief.mean_reaction() < 3.2 and belief.sd < 0.25
+    True
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from torch import nn
+
+from pernav.env.policies import explore_policy
+from pernav.world.drivers import REACTION_CV
+
+__all__ = ["ANSWERED", "ANSWER_SPAN", "N_FRAME_FEATURES", "Answer", "AnswerDetector", "BeliefTracker",
+           "ReactionBelief", "answers_of", "frame_features", "frame_series"]
+
+#: the prompts whose answer the belief reads: "turn" and "prepare" (left, right)
+ANSWERED = (1, 2, 3, 4)
+ANSWER_SPAN = 9.0  # s after a prompt's audio end in which its answer is looked for (reaction draws reach ~3x R)
+EARLIEST = 0.25  # s after the audio end before which no answer is looked for
+WINDOW = 3  # frames each side of a candidate frame that its features read
+_CHANNELS = 6  # per frame: jump of acceleration, acceleration, lane-offset jump, speed/10, steering change, brake
+N_FRAME_FEATURES = _CHANNELS * (2 * WINDOW + 1)
+SIGMA = math.sqrt(math.log1p(REACTION_CV**2))  # SD of one prompt's log reaction time
+DT = 0.1  # s between two frames (the world's 10 frames per one-second step)
+
+
+def frame_series(frames: torch.Tensor, step_end: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The frames of ``T`` steps as one series: ``([T * F, C]`` frames, ``[T * F]`` their simulated times)``.
+
+    ``frames``: ``[T, F, C]`` (the env's ``("next", "frames")``); ``step_end``: ``[T]`` the simulated time at each step's
+    end (``("next", "time")``): frame ``j`` of a step lies ``(j + 1) / F`` s after its start.
+
+    >>> series, times = frame_series(torch.zeros(2, 10, 5), torch.tensor([1.0, 2.0]))
+    >>> series.shape, times[:2].tolist(), round(times[-1].item(), 3)
+    (torch.Size([20, 5]), [0.10000000149011612, 0.20000000298023224], 2.0)
+    """
+    T, F, C = frames.shape
+    offsets = torch.arange(1, F + 1, dtype=torch.float32) / F
+    times = (step_end.float().reshape(T, 1) - 1.0) + offsets
+    return frames.float().reshape(T * F, C), times.reshape(T * F)
+
+
+def frame_features(series: torch.Tensor) -> torch.Tensor:
+    """``[N, N_FRAME_FEATURES]``: for each frame of a ``[N, C]`` series (:data:`~pernav.env.navigation.FRAME_KEYS`),
+    the jumps and levels of the frames around it that a prompt taking effect changes."""
+    speed, acc, brake, steer, offset = series.unbind(-1)
+
+    def jump(x: torch.Tensor) -> torch.Tensor:
+        return torch.diff(x, prepend=x[:1])
+
+    base = torch.stack([jump(acc), acc, jump(offset).abs().clamp(max=4.0), speed / 10.0, 5.0 * jump(steer), brake], -1)
+    padded = torch.cat([base[:1].expand(WINDOW, -1), base, base[-1:].expand(WINDOW, -1)])
+    return torch.cat([padded[k: k + len(base)] for k in range(2 * WINDOW + 1)], -1)
+
+
+@dataclass
+class Answer:
+    """One heard prompt's answer window: its candidate frames' features, their delays after the audio's end."""
+
+    instruction: int
+    end: float  # simulated time the prompt's audio ended
+    features: torch.Tensor  # [K, N_FRAME_FEATURES + 1]: the frames' and whether a later prompt may act there too
+    delays: torch.Tensor  # [K] s after ``end``
+    frame_times: torch.Tensor  # [K]
+
+    @property
+    def prepare(self) -> bool:
+        return self.instruction in (3, 4)
+
+
+def answers_of(instructions: list[int], ends: list[float], series: torch.Tensor, times: torch.Tensor,
+               features: torch.Tensor | None = None, complete: bool = True) -> list[Answer]:
+    """The answer windows of the prompts played (``instructions`` and their audio ``ends``, in order) in a series.
+
+    A window runs from ``EARLIEST`` after the audio's end to :data:`ANSWER_SPAN` after it, or to the audio's end of
+    the next prompt of the same kind ("turn" or "prepare": it replaces this one); each candidate frame also carries
+    whether the next prompt could act there too (it is past that prompt's audio end). With ``complete`` only windows
+    the series covers to their end (and ``WINDOW`` frames beyond) are returned: a drive in progress waits for them.
+    """
+    features = frame_features(series) if features is None else features
+    last = float(times[-1]) if len(times) else -1.0
+    step = float(times[1] - times[0]) if len(times) > 1 else 0.1
+    out = []
+    for k, (instruction, end) in enumerate(zip(instructions, ends, strict=True)):
+        if instruction not in ANSWERED:
+            continue
+        kind = instruction in (3, 4)
+        hi = end + ANSWER_SPAN
+        same = [e for i, e in zip(instructions[k + 1:], ends[k + 1:], strict=True)
+                if i in ANSWERED and (i in (3, 4)) == kind]
+        if same:
+            hi = min(hi, same[0] + EARLIEST)
+        other = ends[k + 1] + EARLIEST if k + 1 < len(ends) else math.inf
+        if complete and last < hi + WINDOW * step - 1e-6:
+            continue
+        idx = torch.nonzero((times > end + EARLIEST) & (times <= hi)).reshape(-1)
+        if len(idx) == 0:
+            continue
+        shared = (times[idx] > other).float().reshape(-1, 1)
+        out.append(Answer(int(instruction), float(end), torch.cat([features[idx], shared], 1), times[idx] - end,
+                          times[idx]))
+    return out
+
+
+class AnswerDetector(nn.Module):
+    """Scores each candidate frame of an answer window as the moment the prompt took effect, against a learned
+    "no visible answer" (one per kind of prompt): ``forward`` gives ``[K + 1]`` log-probabilities, the last "none".
+
+    Fitted by :meth:`fit` on windows whose moment is known (the frame index, or ``-1``: none in the window).
+    """
+
+    def __init__(self, hidden: int = 32) -> None:
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(N_FRAME_FEATURES + 2, hidden), nn.Tanh(), nn.Linear(hidden, 1))
+        self.none = nn.Parameter(torch.zeros(2))  # "turn", "prepare"
+        self.register_buffer("mean", torch.zeros(N_FRAME_FEATURES + 1))
+        self.register_buffer("scale", torch.ones(N_FRAME_FEATURES + 1))
+
+    def _scores(self, features: torch.Tensor, prepare: torch.Tensor) -> torch.Tensor:
+        x = (features - self.mean) / self.scale
+        kind = prepare.float().reshape(*prepare.shape, *([1] * (x.dim() - prepare.dim() - 1)), 1)
+        return self.net(torch.cat([x, kind.expand(*x.shape[:-1], 1)], -1)).squeeze(-1)
+
+    def forward(self, features: torch.Tensor, prepare: bool) -> torch.Tensor:
+        """``[K + 1]`` log-probabilities of the ``K`` candidate frames (``[K, N_FRAME_FEATURES + 1]``) and of "none"."""
+        kind = torch.tensor(bool(prepare))
+        scores = self._scores(features, kind)
+        return torch.log_softmax(torch.cat([scores, self.none[int(prepare)].reshape(1)]), 0)
+
+    def fit(self, answers: list[Answer], labels: list[int], epochs: int = 300, lr: float = 1e-2,
+            seed: int = 0) -> AnswerDetector:
+        """Fit on answer windows and their true frame (``-1``: the prompt took no effect inside the window), all at
+        once (padded), full-batch Adam."""
+        if not answers or len(answers) != len(labels):
+            raise ValueError(f"need answers with one label each; got {len(answers)} and {len(labels)}")
+        torch.manual_seed(seed)
+        K = max(len(a.delays) for a in answers)
+        X = torch.zeros(len(answers), K, N_FRAME_FEATURES + 1)
+        mask = torch.zeros(len(answers), K, dtype=torch.bool)
+        for i, a in enumerate(answers):
+            X[i, : len(a.delays)], mask[i, : len(a.delays)] = a.features, True
+        allf = torch.cat([a.features for a in answers])
+        self.mean.copy_(allf.mean(0))
+        self.scale.copy_(allf.std(0).clamp(min=1e-3))
+        prepare = torch.tensor([a.prepare for a in answers])
+        target = torch.tensor([lab if lab >= 0 else K for lab in labels])
+        optimizer = torch.optim.Adam(self.parameters(), lr=lr)
+        for _ in range(epochs):
+            scores = self._scores(X, prepare).masked_fill(~mask, -1e9)
+            logits = torch.cat([scores, self.none[prepare.long()].reshape(-1, 1)], 1)
+            loss = nn.functional.cross_entropy(logits, target)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        self.final_loss = float(loss.detach())
+        return self
+
+
+class ReactionBelief:
+    """A posterior over the driver's mean reaction time ``R`` on a grid of ``log R``.
+
+    Args:
+        prior_mean, prior_sd: the population prior of ``log R`` (normal).
+        noise: SD (log s) of the detector's timing beside the prompt's own draw; ``outlier``: the share of answers read
+            from a frame that is not the prompt's (both fitted for coverage on development drivers).
+        quantile: posterior SDs above the mean that the prompt rules act on.
+    """
+
+    GRID = torch.linspace(math.log(0.3), math.log(6.0), 241, dtype=torch.float64)
+
+    def __init__(self, prior_mean: float, prior_sd: float, noise: float = 0.15, outlier: float = 0.2,
+                 quantile: float = 1.0) -> None:
+        self.prior_mean, self.prior_sd = float(prior_mean), float(prior_sd)
+        self.noise, self.outlier, self.quantile = float(noise), float(outlier), float(quantile)
+        self.log_post = -0.5 * ((self.GRID - self.prior_mean) / self.prior_sd) ** 2
+        self.answers = 0
+
+    # ----- evidence ------------------------------------------------------------------------------
+    def update(self, delays: torch.Tensor, probs: torch.Tensor, none: float) -> None:
+        """One answer: candidate frames at ``delays`` (s after the audio's end, ``DT`` apart) with the detector's
+        ``probs`` for each, and its probability ``none`` of no visible answer in the window.
+
+        Under ``R`` the prompt takes effect in frame ``k`` with probability ``(1 - outlier) f(d_k | R) DT`` (``f`` the
+        lognormal of one prompt's delay, widened by the detector's ``noise``), and shows no answer in the window with
+        probability ``outlier + (1 - outlier) P(d > window | R)``: a slow driver's answer falls beyond the window (the
+        next prompt's) more often, and that too is evidence. The likelihood weighs both by what the detector read."""
+        d = delays.double().clamp(min=0.05)
+        s = math.sqrt(SIGMA**2 + self.noise**2)
+        mu = self.GRID[:, None] - SIGMA**2 / 2
+        z = (d.log()[None] - mu) / s
+        in_frame = torch.exp(-0.5 * z**2) / (s * d[None] * math.sqrt(2 * math.pi)) * DT  # [G, K]
+        beyond = 0.5 * torch.erfc((math.log(float(d[-1]) + DT / 2) - mu[:, 0]) / (s * math.sqrt(2)))  # [G]
+        likelihood = ((1 - self.outlier) * (probs.double()[None] * in_frame).sum(1)
+                      + none * (self.outlier + (1 - self.outlier) * beyond))
+        self.log_post = self.log_post + likelihood.clamp(min=1e-300).log()
+        self.answers += 1
+
+    # ----- what it says --------------------------------------------------------------------------
+    def weights(self) -> torch.Tensor:
+        w = torch.exp(self.log_post - self.log_post.max())
+        return w / w.sum()
+
+    @property
+    def mean(self) -> float:
+        """Posterior mean of ``log R``."""
+        return float((self.weights() * self.GRID).sum())
+
+    @property
+    def sd(self) -> float:
+        """Posterior SD of ``log R`` (narrows as answers accumulate)."""
+        w = self.weights()
+        return float(((w * (self.GRID - self.mean) ** 2).sum()).sqrt())
+
+    def mean_reaction(self) -> float:
+        """The posterior median of ``R`` (s): ``exp`` of the mean of ``log R``."""
+        return math.exp(self.mean)
+
+    def interval(self, level: float = 0.9) -> tuple[float, float]:
+        """The central ``level`` credible interval of ``R`` (s)."""
+        c = torch.cumsum(self.weights(), 0)
+        lo = int(torch.searchsorted(c, torch.tensor((1 - level) / 2, dtype=c.dtype)))
+        hi = int(torch.searchsorted(c, torch.tensor((1 + level) / 2, dtype=c.dtype)))
+        return math.exp(float(self.GRID[lo])), math.exp(float(self.GRID[min(hi, len(self.GRID) - 1)]))
+
+    def belief(self, guard: bool = True) -> dict[str, Any]:
+        """What the prompt rules act on (:func:`pernav.env.policies.belief_policy`): ``{}`` (explore's timing) when
+        the posterior's upper value (``quantile`` SDs above the mean) is no later than explore's average driver;
+        else that reaction time and, with ``guard``, the quickest driver the posterior allows (its lower value,
+        never slower than the average driver, at the 5th percentile of one prompt's draw)."""
+        average = explore_policy().driver
+        upper = math.exp(self.mean + self.quantile * self.sd)
+        if upper <= average.reaction_time:
+            return {}
+        belief: dict[str, Any] = {"reaction_time": round(upper, 4)}
+        if guard:
+            low = min(math.exp(self.mean - self.quantile * self.sd), average.reaction_time)
+            quick = dataclasses.replace(average, reaction_time=low)
+            belief["fastest"] = {"reaction_time": round(quick.reaction_draw(-1.645), 4),
+                                 "decision_time": average.decision_time}
+        return belief
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"prior_mean": self.prior_mean, "prior_sd": self.prior_sd, "noise": self.noise,
+                "outlier": self.outlier, "quantile": self.quantile, "log_post": self.log_post.clone(),
+                "answers": self.answers}
+
+    @classmethod
+    def from_state_dict(cls, state: Mapping[str, Any]) -> ReactionBelief:
+        out = cls(state["prior_mean"], state["prior_sd"], state["noise"], state["outlier"], state["quantile"])
+        out.log_post, out.answers = state["log_post"].clone(), int(state["answers"])
+        return out
+
+
+class BeliefTracker:
+    """The belief about the driver of one drive, updated after each answered prompt as the drive goes on: what
+    :class:`~pernav.env.navigation.NavigationEnv` calls after every step when its ``config["belief"]`` is one (the
+    env's :class:`~pernav.env.policies.BeliefSource`). Reads the step's played prompt and the car's frames only.
+
+    >>> tracker = BeliefTracker(AnswerDetector(), ReactionBelief(0.3, 0.4))
+    >>> tracker.fields()   # no answer read yet: the prior's upper value, or explore's timing
+    {'reaction_time': 1.9065, 'fastest': {'reaction_time': 0.4779, 'decision_time': 2.0}}
+    """
+
+    def __init__(self, detector: AnswerDetector, belief: ReactionBelief, guard: bool = True) -> None:
+        self.detector, self.belief, self.guard = detector, belief, bool(guard)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new drive (the belief carries over; the drive's frames and prompts do not)."""
+        self.frames: list[torch.Tensor] = []
+        self.ends: list[float] = []
+        self.prompts: list[tuple[int, float]] = []  # (instruction, audio end) played
+        self.read: set[float] = set()  # audio ends of the prompts whose answer was read
+        self.trace: list[tuple[float, float, float]] = []  # (time, mean R, sd of log R) after each update
+
+    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float) -> bool:
+        """One step: the action's instruction, whether it played, its audio's end, the step's frames ``[F, C]`` and
+        the simulated time at its end. Reads every answer whose window has closed; True when the belief moved."""
+        if played:
+            self.prompts.append((int(instruction), float(prompt_end)))
+        self.frames.append(torch.as_tensor(frames, dtype=torch.float32))
+        self.ends.append(float(step_end))
+        return self._read(complete=True)
+
+    def finish(self) -> bool:
+        """The drive ended: read the answers whose window the drive cut short."""
+        return self._read(complete=False)
+
+    def observe_drive(self, trajectory: Any) -> None:
+        """Read a whole ``[T]`` drive (a tau: the env's ``("next", ...)`` entries of what it played and sensed) as a
+        new drive of this driver."""
+        self.reset()
+        step = trajectory["next"]
+        for t in range(trajectory.shape[0]):
+            self.observe(int(trajectory["action"][t]), bool(step["played"][t]), float(step["prompt_end"][t]),
+                         step["frames"][t], float(step["time"][t]))
+        self.finish()
+
+    def _read(self, complete: bool) -> bool:
+        pending = [k for k, (i, e) in enumerate(self.prompts) if i in ANSWERED and e not in self.read]
+        if not self.frames or not pending:
+            return False
+        # only the steps from the first unread prompt on (its window and the frames its features look back on)
+        first = self.prompts[pending[0]][1]
+        start = next((t for t, end in enumerate(self.ends) if end >= first - 1.0), len(self.ends) - 1)
+        series, times = frame_series(torch.stack(self.frames[start:]), torch.tensor(self.ends[start:]))
+        instructions, ends = zip(*self.prompts[pending[0]:], strict=True)
+        answers = answers_of(list(instructions), list(ends), series, times, complete=complete)
+        new = [a for a in answers if a.end not in self.read]
+        moved = False
+        with torch.no_grad():
+            for answer in new:
+                logp = self.detector(answer.features, answer.prepare).exp()
+                self.belief.update(answer.delays, logp[:-1], float(logp[-1]))
+                self.trace.append((float(times[-1]), self.belief.mean_reaction(), self.belief.sd))
+                self.read.add(answer.end)
+                moved = True
+        return moved
+
+    def fields(self) -> dict[str, Any]:
+        return self.belief.belief(self.guard)
+
+    def copy(self) -> BeliefTracker:
+        """A copy for another drive of the same driver (the detector is shared: it does not change)."""
+        out = copy.copy(self)
+        out.belief = ReactionBelief.from_state_dict(self.belief.state_dict())
+        out.reset()
+        return out

@@ -1,0 +1,108 @@
+"""Offline data for the belief about a driver (:mod:`pernav.model.belief`): simulated drivers of the population prior
+drive explore's prompts, and each heard prompt's answer window is labelled with the frame at which the prompt took
+effect. That moment is known only because the drivers are simulated (the paper's offline MDPs); the belief never sees
+it at round time.
+
+Example:
+    >>> drives = labelled_drives("Town1", n=1, population_seed=1, seed=0, config={"n_traffic": 2})
+    >>> answers, labels = drives[0].answers, drives[0].labels
+    >>> len(answers) == len(labels) > 0 and drives[0].reaction_time > 0
+    True
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from pernav.env.navigation import NavigationEnv
+from pernav.model.belief import Answer, AnswerDetector, ReactionBelief, answers_of, frame_series
+from pernav.trainer.collect import derive_seed
+from pernav.world.drivers import DriverProfile, Population, resolve
+
+__all__ = ["LabelledDrive", "fit_belief", "label", "labelled_drive", "labelled_drives"]
+
+
+@dataclass
+class LabelledDrive:
+    """One explore drive of a simulated driver: its answer windows, each one's true frame (``-1``: no effect inside
+    the window: misheard, ignored, or later), and the driver's effective reaction and decision times."""
+
+    answers: list[Answer]
+    labels: list[int]
+    reaction_time: float
+    decision_time: float
+    steps: list[dict[str, Any]]  # per step: instruction, played, prompt_end, frames, time (what a tracker observes)
+    took_effect: dict[float, float | None]  # a played prompt's audio end -> when it took effect (None: misheard/ignored)
+
+
+def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, seed: int,
+                   config: Mapping[str, Any] | None = None) -> LabelledDrive:
+    """Drive explore's prompts for one simulated driver and label each answer window with its true frame."""
+    env = NavigationEnv(town, config=dict(config or {}))
+    _, info = env.reset(seed=seed, options={"route": route, "user": profile, "context": context})
+    ego = env.world.ego
+    active: dict[float, float | None] = {}  # prompt start -> when it took effect (None: misheard or ignored)
+    hear = ego.hear
+
+    def recording_hear(instruction: int, playback: str, now: float) -> None:
+        before = list(ego.heard)
+        hear(instruction, playback, now)  # the same draws as unobserved: the drive is unchanged
+        new = [h for h in ego.heard if h not in before]
+        active[round(float(now), 6)] = new[0].active_at if new else None
+
+    ego.hear = recording_hear
+    steps, done = [], False
+    while not done:
+        action = int(info["explore_action"])
+        _, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+        steps.append({"instruction": action, "played": bool(info["played"]), "prompt_start": info["prompt_start"],
+                      "prompt_end": info["prompt_end"], "frames": info["frames"], "time": info["time"]})
+    series, times = frame_series(torch.from_numpy(np.stack([s["frames"] for s in steps])),
+                                 torch.tensor([s["time"] for s in steps]))
+    played = [s for s in steps if s["played"]]
+    answers = answers_of([s["instruction"] for s in played], [s["prompt_end"] for s in played], series, times,
+                         complete=False)
+    took_effect = {s["prompt_end"]: active.get(round(float(s["prompt_start"]), 6)) for s in played}
+    driver = resolve(profile, context)
+    return LabelledDrive(answers, [label(a, took_effect[a.end]) for a in answers], driver.reaction_time,
+                         driver.decision_time, steps, took_effect)
+
+
+def label(answer: Answer, at: float | None) -> int:
+    """The candidate frame of ``answer`` at which its prompt took effect at time ``at`` (the first frame at or after
+    it), or ``-1``: it took none (``at`` None) or not inside the window."""
+    if at is None:
+        return -1
+    k = int(torch.searchsorted(answer.frame_times, torch.tensor(at - 1e-6, dtype=answer.frame_times.dtype)))
+    return k if k < len(answer.frame_times) and abs(float(answer.frame_times[k]) - at) < 0.15 else -1
+
+
+def labelled_drives(town: str, n: int, population_seed: int, seed: int,
+                    config: Mapping[str, Any] | None = None, progress: bool = False) -> list[LabelledDrive]:
+    """``n`` drivers of ``Population(seed=population_seed)``, one explore drive each on a route drawn from ``seed``."""
+    population, rng = Population(seed=population_seed), random.Random(seed)
+    out = []
+    for k in tqdm(range(n), desc=f"{town} belief offline drives", leave=False, disable=not progress):
+        profile, context = population.sample()
+        out.append(labelled_drive(town, profile, context, rng.randrange(10), derive_seed(seed, town, "belief", k),
+                                  config))
+    return out
+
+
+def fit_belief(drives: list[LabelledDrive], **belief_options: float) -> tuple[AnswerDetector, ReactionBelief]:
+    """The detector fitted on the drives' labelled answers, and the prior belief: ``log R`` of the drives' drivers
+    (normal), with ``belief_options`` (:class:`ReactionBelief`'s ``noise``, ``outlier``, ``quantile``)."""
+    answers = [a for d in drives for a in d.answers]
+    labels = [lab for d in drives for lab in d.labels]
+    detector = AnswerDetector().fit(answers, labels)
+    logs = torch.tensor([math.log(d.reaction_time) for d in drives], dtype=torch.float64)
+    return detector, ReactionBelief(float(logs.mean()), float(logs.std()), **belief_options)
