@@ -204,7 +204,7 @@ class ReactionBelief:
 
     GRID = torch.linspace(math.log(0.3), math.log(6.0), 241, dtype=torch.float64)
 
-    def __init__(self, prior_mean: float, prior_sd: float, noise: float = 0.15, outlier: float = 0.2,
+    def __init__(self, prior_mean: float, prior_sd: float, noise: float = 0.15, outlier: float = 0.3,
                  quantile: float = 1.0) -> None:
         self.prior_mean, self.prior_sd = float(prior_mean), float(prior_sd)
         self.noise, self.outlier, self.quantile = float(noise), float(outlier), float(quantile)

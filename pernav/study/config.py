@@ -15,7 +15,7 @@ from typing import Any
 
 import yaml
 
-from pernav.study.headroom import personal_schedule, sweep_schedule
+from pernav.study.headroom import personal_schedule, split_schedule, sweep_schedule
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
@@ -34,7 +34,7 @@ TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile":
 # the belief learner (pernav.model.belief): simulated population drivers whose prompts' answers train its detector per
 # town, the detector's timing noise (log s) and outlier share in the likelihood, the posterior SDs above the mean that
 # the prompts are timed for, and the guard (as the timing learner's)
-BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 64, "noise": 0.15, "outlier": 0.2, "quantile": 1.0, "guard": 1}
+BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 96, "noise": 0.15, "outlier": 0.3, "quantile": 1.0, "guard": 1}
 
 
 class PresetError(ValueError):
@@ -134,7 +134,7 @@ PRESETS_DIR = Path(__file__).parent / "presets"
 #: the named presets: ``pernav/study/presets/NAME.yaml``
 PRESETS = tuple(sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")))
 #: the schedules a preset may name; ``{"paper": [labels]}`` picks the paper's entries by label
-SCHEDULES = {"paper": paper_schedule, "personal": personal_schedule, "sweep": sweep_schedule}
+SCHEDULES = {"paper": paper_schedule, "personal": personal_schedule, "sweep": sweep_schedule, "split": split_schedule}
 
 
 def _schedule(spec: Any, name: str) -> list[Entry]:

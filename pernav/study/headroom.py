@@ -22,7 +22,8 @@ from pernav.study.schedule import Entry, paper_schedule
 from pernav.world.drivers import Population, resolve
 
 __all__ = ["LATE_EXCESS", "PERSONAL_POPULATION_SEED", "SEEDS", "SWEEP_SHIFTS", "TARGETS", "classify", "episodes",
-           "judge", "judge_markdown", "personal_schedule", "plot_sweep", "preregistration", "sweep_schedule"]
+           "judge", "judge_markdown", "judge_split", "personal_schedule", "plot_sweep", "preregistration",
+           "split_preregistration", "split_schedule", "sweep_schedule"]
 
 #: a cell is late when explore is late for the commit in at least this share more of the prompts than the oracle
 LATE_EXCESS = 0.05
@@ -86,6 +87,98 @@ def sweep_schedule() -> list[Entry]:
         profile = {**POPULATION_AVERAGE.to_dict(), "reaction_time": round(POPULATION_AVERAGE.reaction_time + shift, 2)}
         entries.append(Entry(f"reaction {shift:+.1f} s", "online", profile))
     return entries
+
+
+#: the split benchmark's population-prior drivers (fixed before any run; used nowhere else)
+SPLIT_POPULATION_SEED = 4848
+SPLIT_DRIVERS = 5  # drivers of each half
+#: the study seeds that judge a learner on the split benchmark (fresh: never run before its pre-registration)
+SPLIT_SEEDS = tuple(range(100, 116))
+
+
+def split_schedule() -> list[Entry]:
+    """The ``split`` preset's schedule, where the population's prior is no guide: the default study's offline rounds,
+    then :data:`SPLIT_DRIVERS` slow drivers (outside explore's slack: the cell is late, :func:`classify`) and as many
+    quick ones (inside it), alternating, the first draws of each kind from
+    ``Population(seed=SPLIT_POPULATION_SEED)``. Re-timing everybody says early prompts to the quick half; keeping
+    explore leaves the slow half late; only a learner that tells them apart serves both.
+
+    >>> [e.label for e in split_schedule()[3:6]]
+    ['slow 0', 'quick 0', 'slow 1']
+    """
+    by_label = {e.label: e for e in paper_schedule()}
+    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+    pop, kinds = Population(seed=SPLIT_POPULATION_SEED), {"slow": [], "quick": []}
+    while min(len(v) for v in kinds.values()) < SPLIT_DRIVERS:
+        profile, context = pop.sample()
+        late = lateness(resolve(profile, context))
+        kind = "slow" if late["excess"] >= LATE_EXCESS else "quick" if late["explore"] < LATE_EXCESS else None
+        if kind is not None and len(kinds[kind]) < SPLIT_DRIVERS:
+            kinds[kind].append((profile, context))
+    for i in range(SPLIT_DRIVERS):
+        for kind in ("slow", "quick"):
+            profile, context = kinds[kind][i]
+            entries.append(Entry(f"{kind} {i}", "online", profile.to_dict(), **context.to_dict()))
+    return entries
+
+
+#: what the belief learner must reach on the split benchmark (fixed before any learner ran on it; from the issue)
+SPLIT_TARGETS: dict[str, Any] = {
+    "slow_gap_closed": {"point": 0.60, "ci_low": 0.30,
+                        "what": "slow half (late cells): share of explore's tracking cost above the oracle's that the "
+                                "learner removes, pooled over towns and seeds, paired with explore"},
+    "quick_cost_ratio": {"point": 1.01, "ci_high": 1.04,
+                         "what": "quick half (on-time cells): learner's tracking cost over explore's"},
+    "quick_turn_lead": {"point": 0.3, "what": "quick half: the learner's mean 'turn' lead minus explore's (s), paired "
+                                              "per episode, at most this much earlier"},
+    "all_against_timing": {"point": 1.02, "ci_high": 1.03,
+                           "what": "all cells: learner's tracking cost over timing's (the population baseline); the "
+                                   "quick half's difference to timing reported either way"},
+    "collisions": {"what": "learner's collisions minus explore's over all cells: the 95 % CI includes or lies below "
+                           "zero"},
+}
+
+
+def split_preregistration(towns: tuple[str, ...] = ("Town1", "Town3")) -> dict[str, Any]:
+    """The split benchmark as fixed before any learner runs on it: its drivers, cells and classes, seeds, targets."""
+    return {"towns": list(towns), "late_excess": LATE_EXCESS, "population_seed": SPLIT_POPULATION_SEED,
+            "drivers_per_half": SPLIT_DRIVERS, "seeds": list(SPLIT_SEEDS), "targets": SPLIT_TARGETS,
+            "cells": classify(split_schedule(), list(towns))}
+
+
+def judge_split(results: list[dict[str, Any]], learner: str = "belief", baseline: str = "timing") -> dict[str, Any]:
+    """The split benchmark's pre-registered figures (:data:`SPLIT_TARGETS`) of ``learner``: :func:`judge`'s on the
+    split cells, and the quick half's "turn" lead against explore's and every cell against ``baseline``."""
+    import numpy as np
+
+    from pernav.diagnostics.stats import paired_difference, paired_ratio
+
+    cells = classify(split_schedule(), ["Town1", "Town3"])
+    out = judge(results, learner, cells)
+    late = {(c["town"], c["round"]): c["late"] for c in cells}
+    pairs = {k: v for k, v in episodes(results).items() if (k[1], k[2]) in late}
+
+    def keys(want: bool | None, methods: tuple[str, ...]) -> list[tuple]:
+        return sorted(k for k, v in pairs.items() if set(methods) <= set(v)
+                      and (want is None or late[(k[1], k[2])] == want))
+
+    def values(ks: list[tuple], method: str, field: str = "tracking_cost") -> np.ndarray:
+        return np.array([pairs[k][method][field] for k in ks], dtype=float)
+
+    quick = [k for k in keys(False, ("explore", learner))
+             if pairs[k]["explore"].get("turn_lead") is not None and pairs[k][learner].get("turn_lead") is not None]
+    if quick:
+        out["quick_turn_lead"] = paired_difference(values(quick, "explore", "turn_lead"),
+                                                   values(quick, learner, "turn_lead"))
+        out["quick_turn_lead"] = {**out["quick_turn_lead"], "mean": -out["quick_turn_lead"]["mean"],
+                                  "low": -out["quick_turn_lead"]["high"], "high": -out["quick_turn_lead"]["low"]}
+    for name, want in (("all", None), ("quick", False), ("slow", True)):
+        ks = keys(want, (learner, baseline))
+        if ks:
+            out[f"{name}_against_{baseline}"] = {"ratio": paired_ratio(values(ks, learner), values(ks, baseline)),
+                                                 "difference": paired_difference(values(ks, baseline),
+                                                                                 values(ks, learner))}
+    return out
 
 
 def classify(entries: list[Entry], towns: list[str]) -> list[dict[str, Any]]:

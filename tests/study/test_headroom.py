@@ -23,6 +23,22 @@ def test_the_preregistered_classification_is_reproduced() -> None:
     assert len(SEEDS) >= 6 and TARGETS["late_gap_closed"]["point"] == 0.60
 
 
+def test_the_split_benchmark_s_preregistered_classification_is_reproduced() -> None:
+    from pernav.study.headroom import SPLIT_SEEDS, split_preregistration, split_schedule
+
+    registered = json.loads((REGISTERED.parents[1] / "split" / "preregistration.json").read_text())
+    assert registered == json.loads(json.dumps(split_preregistration(tuple(registered["towns"]))))
+    cells = registered["cells"]
+    # half slow (late: outside explore's slack), half quick (inside it), alternating, in both towns
+    assert [c["late"] for c in cells] == [True, False] * 10
+    assert all(c["round"].startswith("slow" if c["late"] else "quick") for c in cells)
+    assert all(c["explore_late"] < 0.05 for c in cells if not c["late"])
+    assert len(SPLIT_SEEDS) >= 16 and not set(SPLIT_SEEDS) & set(SEEDS)  # fresh seeds, sized for the targets
+    cfg = preset("split")
+    cfg.validate()
+    assert cfg.schedule == split_schedule() and "belief" in cfg.methods and "timing" in cfg.methods
+
+
 def test_the_preset_runs_the_classified_rounds() -> None:
     cfg = preset("personal")
     cfg.validate()
