@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.planner.factory import parse_planner_options
-from pernav.study.config import COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS
+from pernav.study.config import BELIEF_DEFAULTS, COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS
 from pernav.study.errors import CheckpointError
 from pernav.world.constants import PLAYBACK
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
@@ -387,6 +387,9 @@ def _add_study_parser(sub: Any) -> None:
     p.add_argument("--timing-option", action="append", default=[], metavar="KEY=VALUE",
                    help=f"one of the timing learner's options ({', '.join(TIMING_DEFAULTS)}; VALUE a number); "
                         "repeatable")
+    p.add_argument("--belief-option", action="append", default=[], metavar="KEY=VALUE",
+                   help=f"one of the belief learner's options ({', '.join(BELIEF_DEFAULTS)}; VALUE a number); "
+                        "repeatable")
     p.add_argument("--methods", nargs="+", choices=METHODS, help="only these methods (default: the preset's)")
     p.add_argument("--collect", choices=COLLECT,
                    help="the learners' non-MPC data: explore (the paper) or retimed (explore with prompts re-timed "
@@ -528,6 +531,14 @@ def _study(args: argparse.Namespace) -> None:
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise UsageError(f"--timing-option {pair!r}: VALUE must be a number")
         cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
+    try:
+        belief = key_values(args.belief_option, list(cfg.belief), "the belief options")
+    except ValueError as exc:
+        raise UsageError(f"--belief-option {exc}") from None
+    for key, value, pair in belief:
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise UsageError(f"--belief-option {pair!r}: VALUE must be a number")
+        cfg.belief[key] = int(value) if key in ("offline_drivers", "guard") else float(value)
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau_policy is not None:
