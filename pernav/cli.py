@@ -523,22 +523,8 @@ def _study(args: argparse.Namespace) -> None:
         raise UsageError(f"--planner-option {exc}") from None
     if args.methods is not None:
         cfg.methods = [m for m in METHODS if m in args.methods]
-    try:
-        timing = key_values(args.timing_option, list(cfg.timing), "the timing options")
-    except ValueError as exc:
-        raise UsageError(f"--timing-option {exc}") from None
-    for key, value, pair in timing:
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise UsageError(f"--timing-option {pair!r}: VALUE must be a number")
-        cfg.timing[key] = int(value) if key == "offline_drivers" else float(value)
-    try:
-        belief = key_values(args.belief_option, list(cfg.belief), "the belief options")
-    except ValueError as exc:
-        raise UsageError(f"--belief-option {exc}") from None
-    for key, value, pair in belief:
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise UsageError(f"--belief-option {pair!r}: VALUE must be a number")
-        cfg.belief[key] = int(value) if key in ("offline_drivers", "guard") else float(value)
+    _learner_options(args.timing_option, cfg.timing, "timing", ("offline_drivers",))
+    _learner_options(args.belief_option, cfg.belief, "belief", ("offline_drivers", "guard"))
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau_policy is not None:
@@ -556,6 +542,18 @@ def _study(args: argparse.Namespace) -> None:
     print(collision_table(results))
     print(f"results: {Path(args.out) / 'results.json'}, report: {Path(args.out) / 'report.md'} "
           f"({results['timing']['wall_s']} s)")
+
+
+def _learner_options(pairs: list[str], options: dict[str, Any], learner: str, integers: tuple[str, ...]) -> None:
+    """``--LEARNER-option KEY=VALUE`` pairs into ``options`` (numbers only; ``integers`` kept whole)."""
+    try:
+        parsed = key_values(pairs, list(options), f"the {learner} options")
+    except ValueError as exc:
+        raise UsageError(f"--{learner}-option {exc}") from None
+    for key, value, pair in parsed:
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise UsageError(f"--{learner}-option {pair!r}: VALUE must be a number")
+        options[key] = int(value) if key in integers else float(value)
 
 
 def _judge(args: argparse.Namespace) -> None:
