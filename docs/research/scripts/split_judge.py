@@ -16,7 +16,37 @@ def main() -> None:
     runs = [json.loads((Path(p) / "results.json").read_text()) for p in sys.argv[1:]]
     figures = judge_split(runs)
     Path("docs/figures/split/judged.json").write_text(json.dumps(figures, indent=1) + "\n")
-    print(json.dumps(figures, indent=1))
+    print(summary(figures))
+
+
+def _ci(x: dict, scale: float = 1.0, fmt: str = "{:.3f}") -> str:
+    return f"{fmt.format(x['mean'] * scale)} [{fmt.format(x['low'] * scale)}, {fmt.format(x['high'] * scale)}]"
+
+
+def summary(f: dict) -> str:
+    """The pre-registered figures in plain lines (docs/personal.md's table is written from them)."""
+    slow, quick = f["late"], f["on_time"]
+    lines = [f"seeds {f['seeds'][0]}-{f['seeds'][-1]} ({len(f['seeds'])})",
+             f"slow half: {slow['learner_episodes']} episodes; explore {slow['explore']:.1f}, oracle {slow['oracle']:.1f}, "
+             f"belief {slow['learner']:.1f}; oracle gain {_ci(slow['oracle_gain'], 1, '{:+.1f}')}; "
+             f"gap closed {_ci(slow['gap_closed'], 100, '{:.0f}')} %"]
+    for town, t in slow.get("per_town", {}).items():
+        closed = _ci(t["gap_closed"], 100, "{:.0f}")
+        lines.append(f"  {town}: explore {t['explore']:.1f}, oracle {t['oracle']:.1f}, belief {t['learner']:.1f}, "
+                     f"oracle gain {_ci(t['oracle_gain'], 1, '{:+.1f}')}, gap closed {closed} %")
+    lines.append(f"quick half: {quick['learner_episodes']} episodes; explore {quick['explore']:.1f}, oracle "
+                 f"{quick['oracle']:.1f}, belief {quick['learner']:.1f}; belief / explore {_ci(quick['cost_ratio'])}")
+    if "quick_turn_lead" in f:
+        lines.append(f"quick half: belief's turn lead minus explore's {_ci(f['quick_turn_lead'], 1, '{:+.2f}')} s")
+    for name in ("all", "quick", "slow"):
+        key = f"{name}_against_timing"
+        if key in f:
+            lines.append(f"{name} cells: belief / timing {_ci(f[key]['ratio'])}; timing - belief "
+                         f"{_ci(f[key]['difference'], 1, '{:+.1f}')}")
+    c = f["collisions"]
+    lines.append(f"collisions: explore {c['explore']:.0f}, belief {c['learner']:.0f}; belief - explore per episode "
+                 f"{_ci(c['learner_minus_explore'], 1, '{:+.3f}')}")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":
