@@ -27,11 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from pernav.planner.factory import parse_planner_options
-from pernav.study.config import BELIEF_DEFAULTS, COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS
+from pernav.study.config import BELIEF_DEFAULTS, COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS, learner_options
 from pernav.study.errors import CheckpointError
 from pernav.world.constants import PLAYBACK
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
-from pernav.world.files import key_values
 from pernav.world.routing import RouteError
 from pernav.world.towns import TOWN_NAMES, TownError
 
@@ -523,8 +522,11 @@ def _study(args: argparse.Namespace) -> None:
         raise UsageError(f"--planner-option {exc}") from None
     if args.methods is not None:
         cfg.methods = [m for m in METHODS if m in args.methods]
-    _learner_options(args.timing_option, cfg.timing, "timing", ("offline_drivers",))
-    _learner_options(args.belief_option, cfg.belief, "belief", ("offline_drivers", "guard"))
+    try:
+        learner_options(args.timing_option, cfg.timing, "timing", ("offline_drivers",))
+        learner_options(args.belief_option, cfg.belief, "belief", ("offline_drivers", "guard"))
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau_policy is not None:
@@ -542,18 +544,6 @@ def _study(args: argparse.Namespace) -> None:
     print(collision_table(results))
     print(f"results: {Path(args.out) / 'results.json'}, report: {Path(args.out) / 'report.md'} "
           f"({results['timing']['wall_s']} s)")
-
-
-def _learner_options(pairs: list[str], options: dict[str, Any], learner: str, integers: tuple[str, ...]) -> None:
-    """``--LEARNER-option KEY=VALUE`` pairs into ``options`` (numbers only; ``integers`` kept whole)."""
-    try:
-        parsed = key_values(pairs, list(options), f"the {learner} options")
-    except ValueError as exc:
-        raise UsageError(f"--{learner}-option {exc}") from None
-    for key, value, pair in parsed:
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise UsageError(f"--{learner}-option {pair!r}: VALUE must be a number")
-        options[key] = int(value) if key in integers else float(value)
 
 
 def _judge(args: argparse.Namespace) -> None:

@@ -21,7 +21,7 @@ from pernav.trainer.ftml import TrainConfig
 from pernav.world.towns import TOWN_NAMES
 
 __all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig",
-           "preset"]
+           "learner_options", "preset"]
 
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
@@ -39,6 +39,27 @@ BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 96, "noise": 0.15, "outlie
 
 class PresetError(ValueError):
     """Unknown preset or invalid study option."""
+
+
+def learner_options(pairs: list[str], options: dict[str, Any], learner: str, integers: tuple[str, ...]) -> None:
+    """``--LEARNER-option KEY=VALUE`` pairs into ``options`` (numbers only; ``integers`` kept whole); a bad pair
+    raises :class:`PresetError` naming the flag.
+
+    >>> options = dict(BELIEF_DEFAULTS)
+    >>> learner_options(["quantile=1.5"], options, "belief", ("offline_drivers",))
+    >>> options["quantile"]
+    1.5
+    """
+    from pernav.world.files import key_values
+
+    try:
+        parsed = key_values(pairs, list(options), f"the {learner} options")
+    except ValueError as exc:
+        raise PresetError(f"--{learner}-option {exc}") from None
+    for key, value, pair in parsed:
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise PresetError(f"--{learner}-option {pair!r}: VALUE must be a number")
+        options[key] = int(value) if key in integers else float(value)
 
 
 @dataclass
