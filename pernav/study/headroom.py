@@ -168,10 +168,9 @@ def judge_split(results: list[dict[str, Any]], learner: str = "belief", baseline
     quick = [k for k in keys(False, ("explore", learner))
              if pairs[k]["explore"].get("turn_lead") is not None and pairs[k][learner].get("turn_lead") is not None]
     if quick:
-        out["quick_turn_lead"] = paired_difference(values(quick, "explore", "turn_lead"),
-                                                   values(quick, learner, "turn_lead"))
-        out["quick_turn_lead"] = {**out["quick_turn_lead"], "mean": -out["quick_turn_lead"]["mean"],
-                                  "low": -out["quick_turn_lead"]["high"], "high": -out["quick_turn_lead"]["low"]}
+        # the learner's lead minus explore's (> 0: its "turn" prompts come earlier)
+        out["quick_turn_lead"] = paired_difference(values(quick, learner, "turn_lead"),
+                                                   values(quick, "explore", "turn_lead"))
     for name, want in (("all", None), ("quick", False), ("slow", True)):
         ks = keys(want, (learner, baseline))
         if ks:
