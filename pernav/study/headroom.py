@@ -22,8 +22,8 @@ from pernav.study.schedule import Entry, paper_schedule
 from pernav.world.drivers import Population, resolve
 
 __all__ = ["LATE_EXCESS", "PERSONAL_POPULATION_SEED", "SEEDS", "SWEEP_SHIFTS", "TARGETS", "classify", "episodes",
-           "judge", "judge_markdown", "judge_split", "personal_schedule", "plot_sweep", "preregistration",
-           "split_preregistration", "split_schedule", "sweep_schedule"]
+           "judge", "judge_markdown", "judge_split", "offline_rounds", "personal_schedule", "plot_sweep", "preregistration",
+           "split_drivers", "split_preregistration", "split_schedule", "sweep_schedule"]
 
 #: a cell is late when explore is late for the commit in at least this share more of the prompts than the oracle
 LATE_EXCESS = 0.05
@@ -62,8 +62,7 @@ _NAMED = [  # (label, user, context): four outside explore's slack, four inside
 def personal_schedule() -> list[Entry]:
     """The ``personal`` preset's schedule: the default study's three offline rounds (user1), then eight named-user
     rounds and :data:`POPULATION_DRAWS` population-prior rounds (``Population(seed=PERSONAL_POPULATION_SEED)``)."""
-    by_label = {e.label: e for e in paper_schedule()}
-    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+    entries = offline_rounds()
     entries += [Entry(label, "online", user, **context) for label, user, context in _NAMED]
     pop = Population(seed=PERSONAL_POPULATION_SEED)
     for i in range(POPULATION_DRAWS):
@@ -81,8 +80,7 @@ def sweep_schedule() -> list[Entry]:
     reaction-time shift of the average driver (:data:`SWEEP_SHIFTS`; every other trait and the context average)."""
     from pernav.world.drivers import POPULATION_AVERAGE
 
-    by_label = {e.label: e for e in paper_schedule()}
-    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+    entries = offline_rounds()
     for shift in SWEEP_SHIFTS:
         profile = {**POPULATION_AVERAGE.to_dict(), "reaction_time": round(POPULATION_AVERAGE.reaction_time + shift, 2)}
         entries.append(Entry(f"reaction {shift:+.1f} s", "online", profile))
@@ -106,20 +104,37 @@ def split_schedule() -> list[Entry]:
     >>> [e.label for e in split_schedule()[3:6]]
     ['slow 0', 'quick 0', 'slow 1']
     """
-    by_label = {e.label: e for e in paper_schedule()}
-    entries = [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
-    pop, kinds = Population(seed=SPLIT_POPULATION_SEED), {"slow": [], "quick": []}
-    while min(len(v) for v in kinds.values()) < SPLIT_DRIVERS:
-        profile, context = pop.sample()
-        late = lateness(resolve(profile, context))
-        kind = "slow" if late["excess"] >= LATE_EXCESS else "quick" if late["explore"] < LATE_EXCESS else None
-        if kind is not None and len(kinds[kind]) < SPLIT_DRIVERS:
-            kinds[kind].append((profile, context))
+    entries = offline_rounds()
+    kinds = split_drivers(SPLIT_POPULATION_SEED, SPLIT_DRIVERS)
     for i in range(SPLIT_DRIVERS):
         for kind in ("slow", "quick"):
             profile, context = kinds[kind][i]
             entries.append(Entry(f"{kind} {i}", "online", profile.to_dict(), **context.to_dict()))
     return entries
+
+
+def offline_rounds() -> list[Entry]:
+    """The default study's three offline rounds (user1), which every benchmark schedule starts with."""
+    by_label = {e.label: e for e in paper_schedule()}
+    return [by_label[x] for x in ("Offline 0", "Offline 1", "Offline 2")]
+
+
+def split_drivers(population_seed: int, n: int) -> dict[str, list[tuple[Any, Any]]]:
+    """The first ``n`` slow (outside explore's slack: late, :func:`classify`) and ``n`` quick (inside it) drivers drawn
+    from ``Population(seed=population_seed)``, as ``{"slow": [(profile, context), ...], "quick": [...]}``; drivers
+    in neither class (late for the oracle too) are skipped.
+
+    >>> [len(v) for v in split_drivers(SPLIT_POPULATION_SEED, 2).values()]
+    [2, 2]
+    """
+    pop, kinds = Population(seed=population_seed), {"slow": [], "quick": []}
+    while min(len(v) for v in kinds.values()) < n:
+        profile, context = pop.sample()
+        late = lateness(resolve(profile, context))
+        kind = "slow" if late["excess"] >= LATE_EXCESS else "quick" if late["explore"] < LATE_EXCESS else None
+        if kind is not None and len(kinds[kind]) < n:
+            kinds[kind].append((profile, context))
+    return kinds
 
 
 #: what the belief learner must reach on the split benchmark (fixed before any learner ran on it; from the issue)

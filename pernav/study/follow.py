@@ -1,0 +1,315 @@
+"""Does the navigation follow its driver? The three looks of issue 48 that the split benchmark does not give
+(docs/personal.md, "Following the driver"), each fixed here before any learner ran on its seeds:
+
+* **the sweep's leads**: in the ``personal_sweep`` preset (the average driver, reaction time shifted), a learner's
+  mean "turn" lead must rise with the driver's reaction time in each town and seed (Spearman over the sweep's
+  points), cost the quickest driver at most 1.03 × explore and close 60 % of the slowest one's gap;
+* **the personalization curve**: the ``repeat`` preset's drivers (two slow, two quick, fresh) each drive five
+  rounds; the belief persists across them, so round *k* of a driver is its belief after *k* drives;
+* **the headroom benchmark on fresh seeds**: the ``personal`` preset's cells, the belief learner against
+  ``timing`` (the population baseline).
+
+Example:
+    >>> [e.label for e in repeat_schedule()[3:6]]
+    ['slow 0 drive 1', 'quick 0 drive 1', 'slow 1 drive 1']
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from pernav.study.headroom import (
+    LATE_EXCESS,
+    SWEEP_SHIFTS,
+    TARGETS,
+    classify,
+    episodes,
+    judge,
+    offline_rounds,
+    personal_schedule,
+    split_drivers,
+    sweep_schedule,
+)
+from pernav.study.schedule import Entry
+from pernav.world.drivers import resolve
+
+__all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
+           "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
+           "plot_sweep_leads", "preregistration", "repeat_schedule", "spearman"]
+
+#: the sweep's study seeds for this look (fresh: never run before this pre-registration)
+SWEEP_SEEDS = (200, 201, 202, 203)
+SWEEP_TARGETS: dict[str, Any] = {
+    "spearman": {"point": 0.8, "what": "in each town and seed, the Spearman correlation of the learner's mean 'turn' "
+                                       "lead (over the cell's routes) with the driver's reaction time, over the "
+                                       "sweep's five points"},
+    "quick_end_cost_ratio": {"point": 1.03, "what": "quickest point (reaction -0.4 s): learner's tracking cost over "
+                                                    "explore's, pooled over towns and seeds, paired"},
+    "slow_end_gap_closed": {"point": 0.60, "what": "slowest point (reaction +1.2 s): share of explore's cost above the "
+                                                   "oracle's that the learner removes, pooled, paired"},
+}
+
+#: the repeated-drives drivers: fresh draws (used nowhere else), two of each half, five drives each
+REPEAT_POPULATION_SEED = 5151
+REPEAT_DRIVERS = 2
+REPEAT_DRIVES = 5
+REPEAT_SEEDS = (400, 401, 402, 403)
+REPEAT_TARGETS: dict[str, Any] = {
+    "slow_gap_closed_after_3": {"point": 0.80, "what": "slow drivers' third drive: share of explore's cost above the "
+                                                       "oracle's that the learner removes, pooled over towns, "
+                                                       "drivers and seeds, paired"},
+    "curve": {"what": "reported either way: slow gap closed, quick cost ratio over explore, the quick half's 'turn' "
+                      "lead minus explore's and the belief's 90 % interval width after 1, 2, 3, 4 and 5 drives"},
+}
+
+#: the headroom benchmark's fresh seeds for the belief learner (never run before this pre-registration)
+HEADROOM_FRESH_SEEDS = (300, 301, 302, 303, 304, 305)
+HEADROOM_FRESH_TARGETS: dict[str, Any] = {
+    "late_minus_timing": {"point": 0.05, "what": "late cells: (learner's cost - timing's) / (explore's - the "
+                                                 "oracle's), pooled, paired: at most 5 % of the gap worse than timing"},
+    "on_time_cost_ratio": {"point": 1.02, "what": "on-time cells: learner's tracking cost over explore's"},
+    "collisions": {"what": "learner's collisions minus explore's over all cells: the 95 % CI includes or lies below "
+                           "zero"},
+    "standing": {"what": "the benchmark's own targets (pernav.study.headroom.TARGETS), reported either way",
+                 "targets": TARGETS},
+}
+
+
+def repeat_schedule() -> list[Entry]:
+    """The ``repeat`` preset's schedule: the offline rounds, then :data:`REPEAT_DRIVES` rounds of each of
+    :data:`REPEAT_DRIVERS` slow and as many quick drivers (``Population(seed=REPEAT_POPULATION_SEED)``), the drivers
+    alternating within each pass. A driver's rounds share its profile and context, so the belief learner's
+    posterior after one round is its prior in the next (the study's user key)."""
+    entries = offline_rounds()
+    kinds = split_drivers(REPEAT_POPULATION_SEED, REPEAT_DRIVERS)
+    for k in range(1, REPEAT_DRIVES + 1):
+        for i in range(REPEAT_DRIVERS):
+            for kind in ("slow", "quick"):
+                profile, context = kinds[kind][i]
+                entries.append(Entry(f"{kind} {i} drive {k}", "online", profile.to_dict(), **context.to_dict()))
+    return entries
+
+
+def preregistration() -> dict[str, Any]:
+    """The three looks as fixed before any learner ran on their seeds (JSON-ready)."""
+    towns = ["Town1", "Town3"]
+    return {"late_excess": LATE_EXCESS, "learner": "belief", "one_look": True,
+            "sweep": {"preset": "personal_sweep", "seeds": list(SWEEP_SEEDS), "shifts": list(SWEEP_SHIFTS),
+                      "targets": SWEEP_TARGETS, "cells": classify(sweep_schedule(), towns)},
+            "repeat": {"preset": "repeat", "population_seed": REPEAT_POPULATION_SEED, "drivers_per_half": REPEAT_DRIVERS,
+                       "drives": REPEAT_DRIVES, "seeds": list(REPEAT_SEEDS), "targets": REPEAT_TARGETS,
+                       "cells": classify(repeat_schedule(), towns)},
+            "headroom": {"preset": "personal", "seeds": list(HEADROOM_FRESH_SEEDS), "targets": HEADROOM_FRESH_TARGETS,
+                         "cells": classify(personal_schedule(), towns)}}
+
+
+def spearman(x: list[float], y: list[float]) -> float:
+    """Spearman's rank correlation (average ranks for ties); NaN when either side is constant.
+
+    >>> spearman([1, 2, 3, 4], [10, 20, 15, 40])
+    0.8
+    """
+    def ranks(v: list[float]) -> np.ndarray:
+        a = np.asarray(v, dtype=float)
+        order = a.argsort(kind="stable")
+        r = np.empty(len(a))
+        r[order] = np.arange(len(a), dtype=float)
+        for value in np.unique(a):  # ties share their mean rank
+            r[a == value] = r[a == value].mean()
+        return r
+
+    rx, ry = ranks(x), ranks(y)
+    if rx.std() == 0 or ry.std() == 0:
+        return float("nan")
+    return round(float(np.corrcoef(rx, ry)[0, 1]), 6)
+
+
+def _reaction(entry: Entry) -> float:
+    """The driver's reaction time in its context (what the belief reads: fog adds to it)."""
+    return round(resolve(entry.profile(), entry.context()).reaction_time, 4)
+
+
+def _leads(pairs: dict[tuple, dict[str, dict[str, Any]]], method: str, town: str, label: str,
+           seed: int | None = None) -> list[float]:
+    return [p[method]["turn_lead"] for k, p in pairs.items() if k[1] == town and k[2] == label
+            and (seed is None or k[0] == seed) and method in p and p[method].get("turn_lead") is not None]
+
+
+def _paired(pairs: dict[tuple, dict[str, dict[str, Any]]], labels: set[str], methods: tuple[str, ...],
+            field: str = "tracking_cost", town: str | None = None) -> dict[str, np.ndarray]:
+    keys = sorted(k for k, p in pairs.items() if k[2] in labels and set(methods) <= set(p)
+                  and (town is None or k[1] == town) and all(p[m].get(field) is not None for m in methods))
+    return {m: np.array([pairs[k][m][field] for k in keys], dtype=float) for m in methods}
+
+
+def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
+                methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
+    """The sweep look's figures (:data:`SWEEP_TARGETS`): every method's Spearman of mean "turn" lead with reaction
+    time per town and seed, and the learner's cost at the quick end and gap closed at the slow end."""
+    from pernav.diagnostics.stats import gap_closed, paired_ratio
+
+    pairs = episodes(results)
+    online = [e for e in sweep_schedule() if e.phase == "online"]
+    reaction = {e.label: _reaction(e) for e in online}
+    towns, seeds = sorted({k[1] for k in pairs}), sorted({k[0] for k in pairs})
+    out: dict[str, Any] = {"learner": learner, "seeds": seeds, "reaction_times": list(reaction.values()),
+                           "spearman": {}, "leads": {}}
+    for method in methods:
+        for town in towns:
+            per_seed = {}
+            for seed in seeds:
+                points = [(reaction[label], _leads(pairs, method, town, label, seed)) for label in reaction]
+                points = [(r, float(np.mean(v))) for r, v in points if v]
+                if len(points) >= 3:
+                    per_seed[str(seed)] = spearman(*map(list, zip(*points, strict=True)))
+            if per_seed:
+                out["spearman"].setdefault(method, {})[town] = per_seed
+            leads = {label: _leads(pairs, method, town, label) for label in reaction}
+            if any(leads.values()):
+                out["leads"].setdefault(method, {})[town] = {
+                    str(reaction[label]): round(float(np.mean(v)), 4) if v else None for label, v in leads.items()}
+    quick, slow = {online[0].label}, {online[-1].label}
+    for town in [None, *towns]:
+        name = town or "pooled"
+        q = _paired(pairs, quick, ("explore", learner), town=town)
+        s = _paired(pairs, slow, ("explore", learner, "oracle"), town=town)
+        row: dict[str, Any] = {}
+        if len(q["explore"]):
+            row["quick_end_cost_ratio"] = paired_ratio(q[learner], q["explore"])
+        if len(s["explore"]):
+            row["slow_end_gap_closed"] = gap_closed(s["explore"], s[learner], s["oracle"])
+            row["slow_end"] = {m: float(s[m].mean()) for m in s}
+        out[name] = row
+    rhos = [r for town in out["spearman"].get(learner, {}).values() for r in town.values()]
+    out["spearman_min"] = min(rhos) if rhos else None
+    return out
+
+
+def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict[str, Any]:
+    """The personalization curve (:data:`REPEAT_TARGETS`): per drive *k* of the same driver, the slow drivers' gap
+    closed, the quick drivers' cost over explore's and "turn" lead minus explore's, and the belief's interval."""
+    from pernav.diagnostics.stats import gap_closed, paired_difference, paired_ratio
+
+    pairs = episodes(results)
+    cells = classify(repeat_schedule(), ["Town1", "Town3"])
+    late = {c["round"]: c["late"] for c in cells}  # a driver's class is its own, the same in both towns
+    truth = {e.label: _reaction(e) for e in repeat_schedule() if e.phase == "online"}
+    out: dict[str, Any] = {"learner": learner, "seeds": sorted({k[0] for k in pairs}), "drives": {}}
+    for k in range(1, REPEAT_DRIVES + 1):
+        labels = {label for label in late if label.endswith(f" drive {k}")}
+        slow = _paired(pairs, {x for x in labels if late[x]}, ("explore", learner, "oracle"))
+        quick = _paired(pairs, {x for x in labels if not late[x]}, ("explore", learner))
+        lead = _paired(pairs, {x for x in labels if not late[x]}, ("explore", learner), "turn_lead")
+        row: dict[str, Any] = {}
+        if len(slow["explore"]):
+            row["slow_gap_closed"] = gap_closed(slow["explore"], slow[learner], slow["oracle"])
+            row["slow"] = {m: float(v.mean()) for m, v in slow.items()}
+        if len(quick["explore"]):
+            row["quick_cost_ratio"] = paired_ratio(quick[learner], quick["explore"])
+        if len(lead["explore"]):
+            row["quick_turn_lead"] = paired_difference(lead[learner], lead["explore"])
+        widths, errors = [], []
+        for result in results:
+            for diag in result.get("diagnostics", {}).values():
+                for label, b in diag.get(learner, {}).get("beliefs", {}).items():
+                    if label in labels:
+                        widths.append(b["interval"][1] - b["interval"][0])
+                        errors.append(abs(np.log(b["reaction_time"] / truth[label])))
+        if widths:
+            row["interval_width"] = round(float(np.mean(widths)), 4)
+            row["abs_log_error"] = round(float(np.mean(errors)), 4)
+        out["drives"][str(k)] = row
+    return out
+
+
+def judge_headroom_fresh(results: list[dict[str, Any]], learner: str = "belief",
+                         baseline: str = "timing") -> dict[str, Any]:
+    """The headroom look on fresh seeds (:data:`HEADROOM_FRESH_TARGETS`): :func:`~pernav.study.headroom.judge` of
+    the learner and of ``baseline`` on the same episodes, and the learner's late-cell cost above the baseline's as a
+    share of the explore-to-oracle gap, with a paired bootstrap CI."""
+    cells = classify(personal_schedule(), ["Town1", "Town3"])
+    late = {(c["town"], c["round"]): c["late"] for c in cells}
+    out = {"learner": judge(results, learner, cells), "baseline": judge(results, baseline, cells)}
+    pairs = episodes(results)
+    keys = sorted(k for k, p in pairs.items() if late.get((k[1], k[2])) and
+                  {"explore", "oracle", learner, baseline} <= set(p))
+    if keys:
+        e, o, m, b = (np.array([pairs[k][x]["tracking_cost"] for k in keys], dtype=float)
+                      for x in ("explore", "oracle", learner, baseline))
+
+        def share(idx: np.ndarray) -> np.ndarray:
+            gap = e[idx].mean(-1) - o[idx].mean(-1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                return np.where(gap > 0, (m[idx].mean(-1) - b[idx].mean(-1)) / gap, np.nan)
+
+        boot = share(np.random.default_rng(0).integers(0, len(keys), size=(4000, len(keys))))
+        boot = boot[~np.isnan(boot)]
+        out["late_minus_baseline"] = {"mean": float(share(np.arange(len(keys)))), "n": len(keys),
+                                      "low": float(np.quantile(boot, 0.025)), "high": float(np.quantile(boot, 0.975))}
+    return out
+
+
+def _axes(n: int, width: float = 5.5):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, n, figsize=(width * n, 4), squeeze=False)
+    return plt, fig, axes[0]
+
+
+def plot_sweep_leads(results: list[dict[str, Any]], path: str,
+                     methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
+    """The sweep's "turn" lead per method against the driver's reaction time (mean over routes and seeds with its
+    95 % bootstrap CI), one panel per town; returns the plotted points."""
+    from pernav.diagnostics.stats import bootstrap_ci
+
+    pairs = episodes(results)
+    towns = sorted({k[1] for k in pairs})
+    online = [e for e in sweep_schedule() if e.phase == "online"]
+    plt, fig, axes = _axes(len(towns))
+    data: dict[str, Any] = {}
+    for ax, town in zip(axes, towns, strict=True):
+        data[town] = {}
+        for method in methods:
+            points = [(_reaction(e), *bootstrap_ci(v)) for e in online
+                      if (v := _leads(pairs, method, town, e.label))]
+            if not points:
+                continue
+            data[town][method] = points
+            x, m, lo, hi = (list(c) for c in zip(*points, strict=True))
+            ax.plot(x, m, marker="o", label=method)
+            ax.fill_between(x, lo, hi, alpha=0.15)
+        ax.set_title(town)
+        ax.set_xlabel("the driver's reaction time (s)")
+        ax.set_ylabel("'turn' prompt's lead (s before the commit point)")
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return data
+
+
+def plot_personalization(judged: dict[str, Any], path: str) -> None:
+    """The personalization curve from :func:`judge_repeat`: the slow drivers' gap closed and the quick drivers'
+    cost over explore's after each drive of the same driver (95 % CIs)."""
+    plt, fig, (left, right) = _axes(2, 5.0)
+    drives = sorted(judged["drives"], key=int)
+    for ax, key, scale, label in ((left, "slow_gap_closed", 100, "slow drivers: gap closed (%)"),
+                                  (right, "quick_cost_ratio", 1, "quick drivers: cost / explore's")):
+        pts = [(int(k), judged["drives"][k][key]) for k in drives if key in judged["drives"][k]]
+        x = [p[0] for p in pts]
+        m = [p[1]["mean"] * scale for p in pts]
+        err = [[(p[1]["mean"] - p[1]["low"]) * scale for p in pts], [(p[1]["high"] - p[1]["mean"]) * scale for p in pts]]
+        ax.errorbar(x, m, yerr=err, marker="o", capsize=3)
+        ax.axhline(100 if scale == 100 else 1.0, color="0.6", lw=0.8, ls="--")
+        ax.set_xlabel("drives of the same driver")
+        ax.set_ylabel(label)
+        ax.set_xticks(x)
+    fig.suptitle(f"{judged['learner']}: the personalization curve (seeds {', '.join(map(str, judged['seeds']))})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
