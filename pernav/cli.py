@@ -12,7 +12,7 @@ Example:
     $ pernav play --town Town1 --route 0 --policy oracle --user user3 --record drives/
     $ pernav play --town Town1 --route 3 --policy study --study runs/default --tau drives/my-tau.pt
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/
-    $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/ --resume
+    $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/ --learner belief
     $ pernav diagnose planning --routes 3 --paper-routes 0 --json planning_error.json
 """
 
@@ -168,9 +168,11 @@ def _controls(args: argparse.Namespace) -> Any:
     return KeyboardControls
 
 
-def _check_learner(learner: str) -> str:
-    if learner not in LEARNERS:
-        raise UsageError(f"--learner {learner!r}: choose one of {', '.join(LEARNERS)}")
+def _check_learner(learner: str, belief: bool = False) -> str:
+    """``belief``: the belief learner is allowed too (``pernav personalize``)."""
+    allowed = (*LEARNERS, "belief") if belief else LEARNERS
+    if learner not in allowed:
+        raise UsageError(f"--learner {learner!r}: choose one of {', '.join(allowed)}")
     return learner
 
 
@@ -290,15 +292,16 @@ def _personalize(args: argparse.Namespace) -> int:
     context = _check_drive_args(args)
     if args.updates is not None and args.updates < 0:
         raise UsageError(f"--updates must be >= 0, got {args.updates}")
-    _check_learner(args.learner)
+    _check_learner(args.learner, belief=True)
     if args.resume and args.record is None:
         raise UsageError("--resume needs --record DIR: the interrupted session's folder")
     import time
 
-    from pernav.play.personal import PersonalSession, summary_markdown
+    from pernav.play.believe import session_class
+    from pernav.play.personal import summary_markdown
 
     record = args.record or str(Path("drives") / f"personal-{args.town}-{time.strftime('%Y%m%d-%H%M%S')}")
-    session = PersonalSession(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
+    session = session_class(args.learner)(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
                               record_dir=record, n_traffic=args.traffic, updates=args.updates,
                               learner=args.learner, window=not args.headless, announce=print, resume=args.resume,
                               countdown=args.countdown, hide_cost=args.hide_cost,
@@ -313,8 +316,8 @@ def _personalize(args: argparse.Namespace) -> int:
     result = session.run()
     print(summary_markdown(result.summary))
     if result.interrupted:
-        print(f"the session was stopped early; what was driven is kept (continue it: pernav personalize ... --record "
-              f"{record} --resume)")
+        print("the session was stopped early; what was driven is kept" + (
+            "" if args.learner == "belief" else f" (continue it: pernav personalize ... --record {record} --resume)"))
     if any(d["file"] for d in result.drives):
         print(f"recorded: {result.folder}")
     if result.ctrl_c:
@@ -333,11 +336,8 @@ def _bench(args: argparse.Namespace) -> None:
     figures = run_benchmarks(args.which, quick=args.quick, screenshots=args.screenshots)
     if args.json:
         print(json.dumps(figures, indent=2))
-    else:
-        for name, fig in figures.items():
-            print(f"[{name}]")
-            for k, v in fig.items():
-                print(f"  {k}: {v}")
+    for name, fig in ({} if args.json else figures).items():
+        print(f"[{name}]\n" + "\n".join(f"  {k}: {v}" for k, v in fig.items()))
 
 
 def _drive_options(p: argparse.ArgumentParser, record_help: str) -> None:
@@ -457,8 +457,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "driven twice (at least two routes)")
     p.add_argument("--updates", type=int, metavar="N", help="meta updates after each round (default: the study's, "
                    "at most 10)")
-    p.add_argument("--learner", default="adapt", help="the study's learner to personalize: adapt (default), "
-                   "adapt_speed (chooses the playback speed too) or sysid (not adapted to you: a control)")
+    p.add_argument("--learner", default="adapt", help="the study's learner: adapt (default), adapt_speed (chooses the "
+                   "playback speed too), sysid (not adapted to you: a control) or belief (times the prompts for you, "
+                   "shows your reaction time after each drive)")
     _drive_options(p, "the session's folder: every drive, summary.json/.md and the personalized model "
                    "(default drives/personal-TOWN-TIME)")
     p.add_argument("--resume", action="store_true", help="continue the interrupted session in --record (same "

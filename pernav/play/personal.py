@@ -53,6 +53,7 @@ from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlayResult, PlaySession
+from pernav.play.sessions import check_session
 from pernav.study.checkpoints import final_models
 from pernav.study.config import LEARNERS
 from pernav.study.errors import CheckpointError
@@ -61,13 +62,11 @@ from pernav.trainer.collect import derive_seed, in_action_space
 from pernav.trainer.drives import atomic_write, load_drive, save_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig
-from pernav.world.towns import TOWN_NAMES, get_town
 
 __all__ = ["PersonalResult", "PersonalSession", "StudyModel", "StudyPolicy", "adapted_parameters", "load_study",
            "study_policy", "summary_markdown"]
 
 POLICY_NAMES = ("adapted", "explore")  # the two policies a personalization session compares
-SESSION_FILES = ("session.json", "summary.json", "summary.md", "model.pt")  # what a session writes beside its drives
 # the settings a resumed session must share with the interrupted one
 RESUME_KEYS = ("study", "town", "routes", "seed", "learner", "user", "context", "n_traffic", "updates")
 # meta updates after a round by default (fewer if the study took fewer): a few, as the person waits for the next
@@ -287,6 +286,10 @@ def summary_markdown(summary: dict[str, Any]) -> str:
         cost = "-" if row["tracking_cost_mean"] is None else f"{row['tracking_cost_mean']:.0f}"
         lines.append(f"| {name} | {row['drives']} | {cost} | {row['vehicle_collisions']} | {row['kerb_strikes']} | "
                      f"{row['missed_turns']} | {row['completed']}/{row['drives']} |")
+    if summary.get("beliefs"):  # a belief session: where the belief stood after each drive
+        from pernav.play.believe import belief_markdown
+
+        lines += ["", belief_markdown(summary)]
     if summary.get("paired_routes"):
         lines.append("")
         lines.append(f"Paired routes: {summary['paired_routes']}; mean tracking cost difference (adapted - explore): "
@@ -320,31 +323,9 @@ class PersonalSession:
                  countdown: float = 3.0, hide_cost: bool = False, notice: str | None = None,
                  calibrate: bool = False) -> None:
         routes = list(routes)
-        if town not in TOWN_NAMES:
-            raise PlayError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
-        n_routes = len(get_town(town).routes)
-        if len(routes) < 2:
-            raise PlayError(f"need at least two routes (tau's, then one or more to compare on), got {routes}")
-        bad = [r for r in routes if isinstance(r, bool) or not isinstance(r, int) or not 0 <= r < n_routes]
-        if bad:
-            raise PlayError(f"unknown route {bad[0]!r} in {town}; routes are 0-{n_routes - 1}")
-        if seed < 0:
-            raise PlayError(f"seed must be >= 0, got {seed}")
         if updates is not None and updates < 0:
             raise PlayError(f"updates must be >= 0, got {updates}")
-        self.record_dir = None if record_dir is None else Path(record_dir)
-        if resume and self.record_dir is None:
-            raise PlayError("resuming needs the interrupted session's record folder")
-        if self.record_dir is not None:
-            if self.record_dir.exists() and not self.record_dir.is_dir():
-                raise PlayError(f"record folder {str(self.record_dir)!r} exists and is not a folder")
-            held = any((self.record_dir / name).exists() for name in SESSION_FILES)
-            if held and not resume:
-                raise PlayError(f"record folder {str(self.record_dir)!r} already holds a personalization session; "
-                                "choose another, or --resume to continue it")
-            if resume and not (self.record_dir / "session.json").is_file():
-                raise PlayError(f"--resume: record folder {str(self.record_dir)!r} holds no personalization session "
-                                "to resume (no session.json)")
+        self.record_dir = check_session(town, routes, seed, record_dir, resume)
         self.study = load_study(study_dir, town, learner)
         self.town, self.routes, self.seed = town, routes, int(seed)
         self.user, self.context, self.n_traffic = user, context, int(n_traffic)

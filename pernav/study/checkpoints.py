@@ -25,7 +25,7 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
 
-__all__ = ["file_sha256", "final_models", "load_checkpoint", "save_checkpoint"]
+__all__ = ["file_sha256", "final_belief", "final_models", "load_checkpoint", "save_checkpoint"]
 
 
 def file_sha256(path: str | Path) -> str:
@@ -112,3 +112,18 @@ def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[
         raise CheckpointError(f"learner {learner!r} not in the checkpoint; it has {', '.join(data['learners'])}")
     members = data["learners"][learner]["members"]
     return DynamicsModel(**members[0]["model_config"]), [m["model"] for m in members]
+
+
+def final_belief(study: str | Path, town: str) -> dict[str, Any]:
+    """A finished study's belief learner in ``town``: ``{"detector": state dict, "prior": state dict}`` (the answer
+    detector and the population prior it fitted offline), from the last checkpoint, its checksum checked.
+
+    >>> model = final_belief("runs/default", "Town1")  # doctest: +SKIP
+    """
+    ckpt = _verified(Path(study) / "checkpoints" / town, only="state.pt")
+    if ckpt is None:
+        raise CheckpointError(f"no {town} checkpoint in {str(study)!r} (run the study first)")
+    state = torch.load(ckpt / "state.pt", weights_only=False)["state"]
+    if "belief_model" not in state:
+        raise CheckpointError(f"the study in {str(study)!r} did not run the belief learner (add it to its methods)")
+    return state["belief_model"]

@@ -1,0 +1,223 @@
+"""``pernav personalize --learner belief``: the navigation learns when to speak for *you* from how you answer its
+prompts (the belief learner of a finished study, docs/personal.md).
+
+The first drive (``routes[0]``) is explore's; every next route is driven with explore's rules re-timed for what
+the navigation believes of you so far, updated within the drive after each answered prompt. After every whole drive
+the belief reads that drive's answers (when the car began to slow, to change lane, to turn; or no answer), and you
+see your estimated reaction time with its 90 % interval and how your "turn" prompt moved. The posterior is kept in
+the record folder (``belief.pt``) after each drive.
+
+Example:
+    >>> session = BeliefSession("runs/default", "Town1", [0, 3, 5], record_dir="drives/me")  # doctest: +SKIP
+    >>> result = session.run()                                                               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pernav.env.policies import belief_policy
+from pernav.env.torchrl_env import info_action_module
+from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
+from pernav.play.controls import ScriptedControls
+from pernav.play.loop import PlayError, PlaySession
+from pernav.play.personal import PersonalResult, _policy_row, study_settings
+from pernav.play.sessions import check_session
+from pernav.study.checkpoints import final_belief
+from pernav.study.config import BELIEF_DEFAULTS
+from pernav.study.errors import CheckpointError
+from pernav.trainer.collect import derive_seed
+from pernav.trainer.drives import atomic_write, save_drive
+
+__all__ = ["REFERENCE_SPEED", "BeliefSession", "belief_markdown", "prompt_lead", "session_class"]
+
+#: the speed at which a person is shown how their "turn" prompt moved (50 km/h, in m/s)
+REFERENCE_SPEED = 50 / 3.6
+
+
+def prompt_lead(fields: dict[str, Any], speed: float = REFERENCE_SPEED) -> float:
+    """Seconds before the junction's commit point at which the "turn" prompt is said at ``speed`` for a belief's
+    prompt fields (``{}``: explore's timing).
+
+    >>> prompt_lead({}) < prompt_lead({"reaction_time": 2.5})
+    True
+    """
+    return belief_policy(fields).turn_lead(speed) / speed
+
+
+def session_class(learner: str) -> type:
+    """The session ``pernav personalize --learner LEARNER`` runs: :class:`BeliefSession` for ``"belief"``, else
+    :class:`pernav.play.personal.PersonalSession` (a model-based learner of the study)."""
+    from pernav.play.personal import PersonalSession
+
+    return BeliefSession if learner == "belief" else PersonalSession
+
+
+class BeliefSession:
+    """A person's drives with prompts timed by the belief learner of the study in ``study_dir`` (its answer detector
+    and population prior for ``town``). The options are :class:`pernav.play.personal.PersonalSession`'s, but for
+    ``updates`` and ``resume`` (the belief takes no gradient steps; a stopped session is kept, not resumed) and
+    ``learner`` (always ``"belief"``)."""
+
+    def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
+                 context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
+                 n_traffic: int = 8, updates: int | None = None, learner: str = "belief", window: bool = False,
+                 speaker: Any = None, announce: Callable[[str], None] | None = None,
+                 ready: Callable[[], None] | None = None, progress: bool = True, resume: bool = False,
+                 countdown: float = 3.0, hide_cost: bool = False, notice: str | None = None,
+                 calibrate: bool = False) -> None:
+        if learner != "belief":
+            raise PlayError(f"BeliefSession runs the belief learner, not {learner!r} (use PersonalSession)")
+        if updates is not None:
+            raise PlayError("--updates goes with a model-based learner; the belief learner takes no gradient steps")
+        if resume:
+            raise PlayError("--resume goes with a model-based learner; a belief session's drives and belief.pt are "
+                            "kept as they were driven: start a new session")
+        self.routes = list(routes)
+        self.record_dir = check_session(town, self.routes, seed, record_dir, resume=False)
+        config = study_settings(study_dir, town)
+        try:
+            model = final_belief(study_dir, town)
+        except CheckpointError as exc:
+            raise PlayError(str(exc)) from None
+        detector = AnswerDetector()
+        detector.load_state_dict(model["detector"])
+        guard = bool({**BELIEF_DEFAULTS, **(config.get("belief") or {})}["guard"])
+        self.tracker = BeliefTracker(detector, ReactionBelief.from_state_dict(model["prior"]), guard=guard)
+        self.study, self.town, self.seed = str(study_dir), town, int(seed)
+        self.user, self.context, self.n_traffic = user, context, int(n_traffic)
+        self.controls, self.window, self.speaker = controls, window, speaker
+        self.announce = announce or (lambda line: None)
+        self.ready = ready or (lambda: None)
+        self.countdown, self.hide_cost, self.notice, self.calibrate = countdown, hide_cost, notice, calibrate
+        self.drives: list[dict[str, Any]] = []
+        self.beliefs: list[dict[str, Any]] = [self._belief_record(None)]  # the prior, then after each whole drive
+        self.learned: list[int] = []  # the drives the belief has read (the CLI's resume line counts them)
+        self.ctrl_c = False
+
+    def _belief_record(self, drive: int | None) -> dict[str, Any]:
+        """What the person is shown: the estimated reaction time, its 90 % interval, the answers read so far and
+        the "turn" prompt's lead at :data:`REFERENCE_SPEED` for this belief."""
+        b = self.tracker.belief
+        low, high = b.interval(0.9)
+        return {"after_drive": drive, "reaction_time": round(b.mean_reaction(), 3),
+                "interval": [round(low, 3), round(high, 3)], "answers": int(b.answers),
+                "turn_lead_s": round(prompt_lead(self.tracker.fields()), 3)}
+
+    def _controls(self) -> Any:
+        if self.controls is None:
+            return ScriptedControls()
+        if hasattr(self.controls, "read") and not isinstance(self.controls, type):
+            return self.controls
+        return self.controls()
+
+    def _drive(self, number: int, route: int) -> Any:
+        policy_name = "explore" if number == 1 else "belief"
+        title = f"Drive {number} of {len(self.routes)}: {self.town} route {route}"
+        self.announce(title)
+        self.ready()
+        policy = "explore" if policy_name == "explore" else info_action_module("belief_action")
+        session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
+                              seed=derive_seed(self.seed, self.town, "drive", number), n_traffic=self.n_traffic,
+                              window=self.window, speaker=self.speaker,
+                              env_config={"belief": self.tracker}, title=title, countdown=self.countdown,
+                              hide_cost=self.hide_cost, notice=self.notice, calibrate=self.calibrate and number == 1)
+        try:
+            session.controls = self._controls()
+            result = session.run()
+        finally:
+            if session.view is not None:
+                session.view.close()
+        m = result.metrics
+        record = {**m, "policy": policy_name, "round": number - 1, "route": route, "label": f"drive{number}",
+                  "frames": result.frame_stats(), "file": None}
+        if result.trajectory is not None and self.record_dir is not None:
+            name = f"drive{number:02d}-route{route}-{policy_name}" + ("-stopped" if m["interrupted"] else "")
+            record["file"] = str(save_drive(result.trajectory, record, self.record_dir, name))
+        self.drives.append(record)
+        state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
+        self.announce(f"  {state} after {m.get('time', 0):.0f} s: tracking cost {m.get('tracking_cost', 0):.0f}, "
+                      f"missed turns {m.get('missed_turns', 0)}")
+        if result.trajectory is not None and not m["interrupted"]:
+            self._learn(number, result.trajectory)
+        return result
+
+    def _learn(self, number: int, trajectory: Any) -> None:
+        """The belief reads the drive's answers; the person sees where it stands and how the prompt moved."""
+        before = self.beliefs[-1]
+        tracker = self.tracker.copy()
+        tracker.observe_drive(trajectory)
+        self.tracker = tracker
+        self.learned.append(number - 1)
+        now = self._belief_record(number)
+        self.beliefs.append(now)
+        moved = now["turn_lead_s"] - before["turn_lead_s"]
+        self.announce(f"  your reaction time, as the navigation reads it: {now['reaction_time']:.2f} s (90 % interval "
+                      f"{now['interval'][0]:.2f}-{now['interval'][1]:.2f} s, from {now['answers']} answered prompts)")
+        self.announce(f"  your 'turn' prompt at 50 km/h: {now['turn_lead_s']:.1f} s before the junction "
+                      f"({'unchanged' if abs(moved) < 0.05 else f'{moved:+.1f} s'}; explore's "
+                      f"{prompt_lead({}):.1f} s)")
+        self._save()
+
+    def _save(self) -> None:
+        if self.record_dir is None:
+            return
+        self.record_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(self.record_dir / "belief.pt", lambda p: torch.save(
+            {"study": self.study, "town": self.town, "belief": self.tracker.belief.state_dict(),
+             "beliefs": self.beliefs}, p))
+        data = {"study": self.study, "town": self.town, "routes": self.routes, "seed": self.seed, "learner": "belief",
+                "drives": self.drives, "beliefs": self.beliefs}
+        atomic_write(self.record_dir / "session.json", lambda p: p.write_text(json.dumps(data, indent=1)))
+
+    def run(self) -> PersonalResult:
+        """Drive the routes in order; stops early when the person quits or on Ctrl-C (what was driven is kept)."""
+        interrupted = False
+        try:
+            for number, route in enumerate(self.routes, start=1):
+                result = self._drive(number, route)
+                self.ctrl_c = self.ctrl_c or result.ctrl_c
+                if result.metrics["interrupted"] or result.ctrl_c:
+                    interrupted = True
+                    break
+        except KeyboardInterrupt:
+            interrupted = self.ctrl_c = True
+        whole = [d for d in self.drives if not d["interrupted"]]
+        summary = {"study": self.study, "town": self.town, "routes": self.routes, "seed": self.seed,
+                   "learner": "belief", "interrupted": interrupted,
+                   "policies": {name: _policy_row([d for d in whole if d["policy"] == name])
+                                for name in ("belief", "explore")},
+                   "beliefs": self.beliefs,
+                   "drives": [{k: d[k] for k in ("round", "route", "label", "policy", "tracking_cost", "missed_turns",
+                                                 "completed", "interrupted", "file") if k in d} for d in self.drives]}
+        if self.record_dir is not None and self.drives:
+            self._save()
+            atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
+            atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
+                f"# Personal timing: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
+                f"{belief_markdown(summary)}\n"))
+        if self.speaker is not None and hasattr(self.speaker, "close"):
+            self.speaker.close()
+        return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)
+
+
+def belief_markdown(summary: dict[str, Any]) -> str:
+    """The belief after each drive as a Markdown table.
+
+    >>> print(belief_markdown({"beliefs": [{"after_drive": None, "reaction_time": 1.2, "interval": [0.8, 1.9],
+    ...     "answers": 0, "turn_lead_s": 2.6}]}).splitlines()[2])
+    | prior | 1.20 s | 0.80-1.90 s | 0 | 2.6 s |
+    """
+    lines = ["| after | reaction time | 90 % interval | answers read | 'turn' lead at 50 km/h |",
+             "|---|---|---|---|---|"]
+    for b in summary["beliefs"]:
+        after = "prior" if b["after_drive"] is None else f"drive {b['after_drive']}"
+        lines.append(f"| {after} | {b['reaction_time']:.2f} s | {b['interval'][0]:.2f}-{b['interval'][1]:.2f} s | "
+                     f"{b['answers']} | {b['turn_lead_s']:.1f} s |")
+    return "\n".join(lines)
+
