@@ -2,10 +2,10 @@
 
 Each round's buffer stores the round's transitions with ``"round"`` and ``"traj"`` metadata (a globally
 unique trajectory id) and samples contiguous ``[L]`` windows with a ``SliceSampler`` keyed on ``"traj"``,
-so a window never crosses the end of a trajectory. A trajectory shorter than ``L`` is stored (it is still data,
-and may be a round's tau) but :meth:`RoundBuffers.sample` never draws from it: it holds no whole window. ``short``
-counts those per round. The round's adaptation trajectory ``tau_t`` is kept
-apart (:meth:`RoundBuffers.tau`), and so are the round's user's calibration drives, if any
+so a window never crosses the end of a trajectory (each window draws its trajectory uniformly, not by length). A
+trajectory shorter than ``L`` is stored (it is still data, and may be a round's tau) but :meth:`RoundBuffers.sample`
+never draws from it: it holds no whole window. ``short`` counts those per round. The round's adaptation trajectory
+``tau_t`` is kept apart (:meth:`RoundBuffers.tau`), and so are the round's user's calibration drives, if any
 (:meth:`RoundBuffers.user_trajectories`: tau and those). Everything saves to and loads from a folder.
 
 Example:
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import logging
+import operator
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -35,6 +36,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 
+from pernav.model.actions import action_indices
 from pernav.model.dynamics import road_of
 
 __all__ = ["KEYS", "SENSING_KEYS", "RoundBuffers"]
@@ -65,12 +67,28 @@ KEYS = ("observation", "action", "history", ("next", "observation"))
 SENSING_KEYS = ("played", "prompt_start", "prompt_end", "frames")
 
 
+def _round_id(round_: int) -> int:
+    """A round id as an ``int``; ``TypeError`` for anything but an integer (a str, a float, a bool)."""
+    if isinstance(round_, bool):
+        raise TypeError(f"round_ must be an integer round id, got the bool {round_!r}")
+    try:
+        return operator.index(round_)
+    except TypeError:
+        raise TypeError(f"round_ must be an integer round id (0, 1, ...), got {type(round_).__name__} "
+                        f"{round_!r}") from None
+
+
 class RoundBuffers:
     """One slice-sampling replay buffer per round, plus each round's adaptation trajectory.
 
+    A trajectory is checked whole before anything is written (:meth:`add`): a refused one leaves the storage,
+    the trajectory ids and ``lengths`` as they were. A round that would exceed ``capacity`` refuses the trajectory
+    (nothing is ever overwritten), so ``lengths`` always describes the storage. :meth:`sample` draws trajectories
+    uniformly, not by length.
+
     Args:
         L: window length of :meth:`sample` (the L of the L-step loss).
-        capacity: transitions per round.
+        capacity: transitions per round (a trajectory that would exceed it is refused, ``ValueError``).
         seed: seed of the sampling generator (sampling is reproducible given the call sequence).
 
     Attributes:
@@ -107,34 +125,86 @@ class RoundBuffers:
         """Store a ``[T]`` trajectory (from a ``HistoryWindow`` env) in round ``round_``'s buffer.
 
         With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``; with ``calibration=True``
-        one of the round's user's calibration drives (:meth:`user_trajectories`).
+        one of the round's user's calibration drives (:meth:`user_trajectories`). Actions may be categorical or
+        one-hot (stored as indices); entries other than :data:`KEYS` (and the road) are not stored. Everything is
+        checked before anything is written: a refused trajectory (``TypeError``, ``KeyError`` or ``ValueError``:
+        a wrong shape, missing keys, another layout than the stored data's, no room left) changes nothing.
         """
-        if trajectory.ndim != 1 or trajectory.shape[0] == 0:
-            raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
-        data = trajectory.select(*KEYS).clone()
-        road = road_of(trajectory)  # a drive's route_ahead, or stored data's road (a user's drives for fine-tuning)
-        if road is not None:
-            data["road"] = road.clone()
-        data["action"] = data["action"].long().reshape(data.shape)
+        round_ = _round_id(round_)
+        data = self._checked(trajectory)
         T = data.shape[0]
+        stored = len(self.buffers[round_]) if round_ in self.buffers else 0
+        if stored + T > self.capacity:
+            raise ValueError(f"round {round_} holds {stored} of its capacity={self.capacity} transitions: no room for a "
+                             f"trajectory of {T} steps (RoundBuffers refuses rather than overwriting older "
+                             "trajectories; build it with a larger capacity)")
         data.set("round", torch.full((T,), round_, dtype=torch.long))
         data.set("traj", torch.full((T,), self.n_traj, dtype=torch.long))
-        self.n_traj += 1
-        with _quiet_storage():
-            self.buffers.setdefault(round_, self._new_buffer()).extend(data)
-        self.lengths.setdefault(round_, []).append(T)
-        if T < self.L:
-            log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
-                        "round)", round_, T, self.L, self.short[round_])
+        kept = None
         if tau or calibration:
             kept = data.clone(False)
             for key in SENSING_KEYS:  # what happened during each step: the "next" entries (as the env writes them)
                 if ("next", key) in trajectory.keys(True):
                     kept["next", key] = trajectory["next", key].clone()
-            if tau:
-                self.taus[round_] = kept
-            if calibration:
-                self.calibration.setdefault(round_, []).append(kept)
+        # checked: from here on nothing raises on the data, and the storage, ids and lengths move together
+        buffer = self.buffers[round_] if round_ in self.buffers else self._new_buffer()
+        with _quiet_storage():
+            buffer.extend(data)
+        self.buffers[round_] = buffer
+        self.n_traj += 1
+        self.lengths.setdefault(round_, []).append(T)
+        if T < self.L:
+            log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
+                        "round)", round_, T, self.L, self.short[round_])
+        if tau:
+            self.taus[round_] = kept
+        if calibration:
+            self.calibration.setdefault(round_, []).append(kept)
+
+    def _checked(self, trajectory: TensorDictBase) -> TensorDictBase:
+        """The entries of ``trajectory`` that are stored (actions as indices), checked against the stored data's
+        layout; raises for anything :meth:`add` would refuse, and writes nothing."""
+        if not isinstance(trajectory, TensorDictBase):
+            raise TypeError(f"a trajectory is a [T] TensorDict, got {type(trajectory).__name__}")
+        if trajectory.ndim != 1 or trajectory.shape[0] == 0:
+            raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
+        present = trajectory.keys(True)
+        missing = [key for key in KEYS if key not in present]
+        if missing:
+            raise KeyError(f"a trajectory needs the entries {list(KEYS)}; missing {missing}")
+        data = trajectory.select(*KEYS).clone()
+        road = road_of(trajectory)  # a drive's route_ahead, or stored data's road (a user's drives for fine-tuning)
+        if road is not None:
+            data["road"] = road.clone()
+        action = action_indices(data["action"], data.shape).long()  # one-hot (TorchRL's OneHot spec): indices
+        if bool((action < 0).any()):
+            raise ValueError(f"actions must be indices >= 0 (or one-hot), got the minimum {int(action.min())}")
+        data["action"] = action
+        observation, history = data["observation"], data["history"]
+        if observation.ndim != 2 or data["next", "observation"].shape != observation.shape:
+            raise ValueError(f"'observation' and ('next', 'observation') must both be [T, S], got "
+                             f"{tuple(observation.shape)} and {tuple(data['next', 'observation'].shape)}")
+        if history.ndim != 3 or history.shape[-1] <= observation.shape[-1]:
+            raise ValueError(f"'history' must be [T, K, S + A] (a HistoryWindow's, S={observation.shape[-1]}), got "
+                             f"{tuple(history.shape)}")
+        self._check_layout(data)
+        return data
+
+    def _check_layout(self, data: TensorDictBase) -> None:
+        """``ValueError`` unless ``data`` has the entries and per-step shapes of the data already stored (every
+        round shares one layout: the model reads them all, :meth:`all_data`)."""
+        if not self.buffers:
+            return
+        stored = self.data(self.rounds[0])[:1]
+        expected = {key: tuple(stored.get(key).shape[1:]) for key in stored.keys(True, True)
+                    if key not in ("round", "traj", "index")}  # ours and the replay buffer's own
+        got = {key: tuple(data.get(key).shape[1:]) for key in data.keys(True, True)}
+        if got != expected:
+            differ = sorted({str(k) for k in got.keys() ^ expected.keys()}
+                            | {str(k) for k in got.keys() & expected.keys() if got[k] != expected[k]})
+            raise ValueError(f"the trajectory's entries differ from the stored data's in {differ}: per-step shapes "
+                             f"{ {str(k): v for k, v in got.items()} } against the stored "
+                             f"{ {str(k): v for k, v in expected.items()} } (e.g. another K, state size or road)")
 
     def tau(self, round_: int) -> TensorDictBase:
         """The adaptation trajectory of a round."""
@@ -162,7 +232,15 @@ class RoundBuffers:
 
     def sample(self, round_: int, n_windows: int) -> TensorDictBase:
         """``[n_windows, L]`` contiguous windows of round ``round_`` (never across a trajectory end, never from a
-        trajectory shorter than ``L``); ``ValueError`` if the round has no trajectory of ``L`` steps or more."""
+        trajectory shorter than ``L``); ``ValueError`` if the round has no trajectory of ``L`` steps or more.
+
+        Each window draws a trajectory uniformly among the round's of ``L`` steps or more (TorchRL's
+        ``SliceSampler``), not in proportion to its length, then its start uniformly within it: a short
+        trajectory's steps are drawn more often than a long one's."""
+        round_ = _round_id(round_)
+        if isinstance(n_windows, bool) or not hasattr(n_windows, "__index__") or operator.index(n_windows) < 1:
+            raise ValueError(f"n_windows must be an integer >= 1, got {n_windows!r}")
+        n_windows = operator.index(n_windows)
         if round_ not in self.buffers:
             raise KeyError(f"round {round_} has no data; rounds: {self.rounds}")
         if max(self.lengths[round_]) < self.L:
@@ -174,7 +252,10 @@ class RoundBuffers:
         return sample.reshape(n_windows, self.L)
 
     def all_data(self) -> TensorDictBase:
-        """Every transition of every round, concatenated."""
+        """Every transition of every round, concatenated; ``ValueError`` while no trajectory is stored."""
+        if not self.buffers:
+            raise ValueError("the buffers hold no data yet: add() trajectories before all_data() or a trainer's "
+                             "fit_normalization()")
         return torch.cat([self.data(r) for r in self.rounds])
 
     def save(self, folder: str | Path) -> None:
