@@ -22,7 +22,7 @@ the true and the predicted divergence, and the mean absolute error, for:
 Run (after ``make study`` or ``pernav study --preset default --out runs/default``; ``pernav diagnose model ...``
 takes the same options):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m pernav.diagnostics.model_check --study runs/default [--town Town1]
-[--json docs/figures/model_check/model_check_Town1.json] [--plot docs/figures/model_check/divergence_Town1.png]
+[--json runs/model_check/model_check_Town1.json] [--plot runs/model_check/divergence_Town1.png]
 [--tau retimed --calibration 0 --personal-updates 100]  (the models of a study run with those options)
 """
 

@@ -25,7 +25,7 @@ under other defaults (files from before 2026-11-24 record none and used ``delay`
 
 Run (or ``pernav diagnose planning ...``, the same options):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m pernav.diagnostics.planning_error [--routes 5] [--paper-routes 2]
-[--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning/planning_error.json] [--resume]
+[--samples 1] [--workers 2] [--drivers LABEL ...] [--json docs/figures/planning_error.json] [--resume]
 [--plot PNG] [--planner-option KEY=VALUE ...]
 """
 

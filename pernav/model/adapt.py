@@ -11,9 +11,9 @@ needs); ``first_order=True`` treats the adaptation gradient as a constant.
 ``alpha / 8``) until it passes the sufficient-decrease (Armijo) test on ``tau`` itself,
 ``loss(P - a g) <= loss(P) - c a |g|^2``. With ``c = 0.5`` it accepts at most the step to ``tau``'s own
 minimum along ``g`` (exact on a quadratic), so it does not overshoot on a driver whose gradient is large
-(at online time in the default study a fixed ``alpha`` lowered the held-out loss in 27 of 36 rounds,
-backtracking in 31; ``recipes/step_size_check.py``, docs/findings.md "One step, how long?"). When no halving
-passes, the step is ``alpha / 8``.
+(at online time in the default study on world v1 a fixed ``alpha`` lowered the held-out loss in 27 of 36 rounds,
+backtracking in 31; ``docs/research/scripts/step_size_check.py``, docs/research/findings.md "One step, how
+long?"). When no halving passes, the step is ``alpha / 8``.
 
 Example:
     >>> import torch

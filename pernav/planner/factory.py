@@ -22,7 +22,7 @@ __all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_c
 #: The options each planner kind takes, with their defaults (``kind`` selects one). ``delay`` is 0: a
 #: delayed prompt is the departure a learned model mispredicts worst (a held "prepare to turn" made the
 #: 12-driver study's catastrophe), and over 3 seeds of the default study adapt without delays was better in
-#: both towns, paired (docs/findings.md, "Without delays: the default since 2026-11-24").
+#: both towns, paired (docs/research/findings.md, "Without delays: the default since 2026-11-24").
 PLANNER_DEFAULTS: dict[str, dict[str, Any]] = {
     "retime": {"horizon": 12, "advance": 6, "delay": 0, "route_weight": 1.0, "progress_weight": 1.0,
                "margin": 20.0, "rel_margin": 0.05, "agree": 1.0, "max_spread": 2.0, "rel_spread": 0.0},

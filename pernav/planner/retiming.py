@@ -121,8 +121,8 @@ class RetimingPlanner(MPCPlannerBase):
             the size is the effect's largest mean distance over the horizon; ``max_spread=None``: no such test).
             ``rel_spread`` > 0 lets members that agree a re-timing moves the car tens of metres (an exit taken
             or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
-            it gained (docs/findings.md), so it is 0 by default. With one row (one model, or one true-model
-            sample) the spread is 0.
+            it gained (docs/research/findings.md, "End to end with the paper's one-step adaptation"), so it is 0
+            by default. With one row (one model, or one true-model sample) the spread is 0.
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 

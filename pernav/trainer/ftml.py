@@ -83,7 +83,7 @@ class TrainConfig:
     max_grad_norm: float | None = 100.0
     # test-time U (planning, the held-out check; not the meta updates): the Armijo constant of a step-halving
     # line search from alpha on tau (pernav.model.adapt); None: the paper's fixed step alpha. A fixed step
-    # overshoots on a driver whose gradient is large (docs/findings.md, "One step, how long?")
+    # overshoots on a driver whose gradient is large (docs/research/findings.md, "One step, how long?")
     backtrack: float | None = 0.5
 
     def to_dict(self) -> dict[str, Any]:
