@@ -1,7 +1,7 @@
-"""Does adaptation help? Does planning help? (issue #3 acceptance figures)
+"""Does adaptation help? Does planning help? (an early acceptance check, world v1)
 
 Usage:
-    .venv/bin/python recipes/component_checks.py [OUT.json] [--town Town1] [--seed 0]
+    .venv/bin/python docs/research/scripts/component_checks.py [OUT.json] [--town Town1] [--seed 0]
 
 1. Adaptation: a meta model trained (warm start + FTML) on explore data from user1 in the paper's offline and
    early online contexts is adapted with ONE gradient step U(P, tau) on ONE explore trajectory of an unseen

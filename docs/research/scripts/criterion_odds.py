@@ -1,6 +1,6 @@
-"""How often does a method pass issue #10's end-to-end criterion on three study seeds?
+"""How often does a method pass the end-to-end criterion of docs/research/findings.md on three study seeds?
 
-Every ``--size``-seed subset (default 3, the issue's) of the given per-seed studies is pooled as
+Every ``--size``-seed subset (default 3, the criterion's) of the given per-seed studies is pooled as
 ``pool_seeds.py`` pools them (:func:`pernav.study.compare.compare`) and checked clause by clause, per town
 (a subset passes a clause when both towns do):
 
@@ -16,8 +16,10 @@ ceiling: how often a planner that knows the driver (the true simulator as its mo
 seeds; the oracle closes 100 % of the gap by definition and has no sysid to beat, so there ``below`` is
 against explore alone.
 
-Run: .venv/bin/python recipes/criterion_odds.py docs/figures/default/tau6/seed{0,1,2,3,4,5,6,7,8,9,10,11,12,13,14}.json \\
-     --method oracle [--size 3] [--json FILE]
+Run: .venv/bin/python docs/research/scripts/criterion_odds.py \\
+     docs/figures/default/tau6/seed{0,1,2,3,4,5,6,7,8,9,10,11,12,13,14}.json --method oracle [--size 3] [--json FILE]
+(the per-seed studies findings.md judged are in commit 4cd6bc4: ``git show 4cd6bc4:docs/figures/default/tau6/seed0.json``
+and so on).
 """
 
 from __future__ import annotations

@@ -5,13 +5,13 @@ departed (its action replaced), over the episode's own seed and ``--seeds`` othe
 compliance draws change with the seed; driver, town and route do not), and reports the paired difference
 (explore - departure, > 0: the departure pays) with a 95 % bootstrap CI and the missed turns of each.
 
-The example below is the one catastrophe of `recipes/configs/headroom_prior12.yaml` (seed 2, Town3,
+The example below is the one catastrophe of `docs/research/configs/headroom_prior12.yaml` (seed 2, Town3,
 population sample 1, route 1: adapt 4764 vs explore 317). The planner delayed explore's "prepare to turn left"
 by one step at step 3 (its three ensemble members all predicted a gain of 34-160); found by logging the
-planner's departures while resuming a kept checkpoint (docs/findings.md, "One delayed prompt").
+planner's departures while resuming a kept checkpoint (docs/research/findings.md, "One delayed prompt").
 
-Run: .venv/bin/python recipes/departure_check.py --schedule recipes/configs/headroom_prior12.yaml --seed 2 \
-    --town Town3 --label "population sample 1" --route 1 --step 3 --action 0 --seeds 20 [--json FILE]
+Run: .venv/bin/python docs/research/scripts/departure_check.py --schedule docs/research/configs/headroom_prior12.yaml \
+    --seed 2 --town Town3 --label "population sample 1" --route 1 --step 3 --action 0 --seeds 20 [--json FILE]
 """
 
 from __future__ import annotations

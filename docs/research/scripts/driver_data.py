@@ -1,7 +1,7 @@
 """How much of *this* driver's data does the learned model need before planning on it pays?
 
 The end-to-end study adapts a meta model with one gradient step on one explore trajectory, and its planner
-stays on explore (docs/findings.md, world v1). This recipe asks the question underneath: with N of the driver's own
+stays on explore (docs/research/findings.md, world v1). This recipe asks the question underneath: with N of the driver's own
 trajectories (explore with its prompts re-timed at random, :class:`pernav.planner.RetimedExplore`, the study's
 ``collect: retimed`` data), does an ensemble trained only on them (the study's size: 3 × [128, 128], K = 10)
 let the default planner beat explore for that driver? If it does for some N, the model class can learn a
@@ -10,17 +10,17 @@ confidence gate) is what loses.
 
 For every panel driver (:data:`pernav.diagnostics.panel.PANEL`) and town: N trajectories on routes k mod 10
 (seeds derived from ``--seed``, never the evaluation seeds), an ensemble per N in ``--sizes`` (nested data:
-the first N), then the paired evaluation episodes of ``recipes/planning_error.py`` (route r, seed 1000 + r)
+the first N), then the paired evaluation episodes of ``pernav/diagnostics/planning_error.py`` (route r, seed 1000 + r)
 with ``explore``, ``oracle`` and ``retime@own<N>`` (the default planner on that ensemble). Results are written
 as (driver, town) jobs finish; ``--resume`` keeps finished jobs.
 
-Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/driver_data.py [--sizes 4 16 64] [--routes 5]
-[--updates 600] [--workers 2] [--drivers LABEL ...] [--json docs/figures/driver_data/driver_data.json] [--resume]
+Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python docs/research/scripts/driver_data.py [--sizes 4 16 64] [--routes 5]
+[--updates 600] [--workers 2] [--drivers LABEL ...] [--json FILE] [--resume]
 [--init STUDY]  (fine-tune the study's final adapt ensemble on the driver's data instead: size 0 is that ensemble)
 [--planner-option KEY=VALUE ...] (the planner's gate, e.g. max_spread=null) [--bootstrap] (each member fits its own
 bootstrap resample of the driver's data, :meth:`EnsembleTrainer.fine_tuned`) [--tag NAME] (appended to the method)
 
-The gate probe of docs/findings.md ("Which gate?"): a finished calibration study's ensemble, 4 own drives, 100
+The gate probe of docs/research/findings.md ("Which gate?"): a finished calibration study's ensemble, 4 own drives, 100
 updates, per gate: ``--init runs/hr0 --sizes 4 --updates 100 --routes 5 [--planner-option max_spread=null] [--bootstrap]``.
 """
 

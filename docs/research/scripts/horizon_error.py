@@ -9,7 +9,7 @@ route progress, and the imagined car's distance across it), and the planner's mi
 (``RetimingPlanner.alarm_check``: every member more than ``--distance`` m off the route where the real car
 was or was not).
 
-Run (after a study): .venv/bin/python recipes/horizon_error.py --study runs/default [--towns Town1 Town3]
+Run (after a study): .venv/bin/python docs/research/scripts/horizon_error.py --study runs/default [--towns Town1 Town3]
 [--users user1 user3 user4] [--routes 3] [--json FILE]
 """
 

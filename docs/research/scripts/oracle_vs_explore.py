@@ -14,7 +14,7 @@ file), so that a pass is not a pick among many tries:
 The second batch ("older", added after the first batch's results, again before its own runs) asks
 whether slow drivers in general, not only the named ones, gain from personal timing.
 
-Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python recipes/oracle_vs_explore.py [--batch named|older|examples]
+Run: OMP_WAIT_POLICY=PASSIVE .venv/bin/python docs/research/scripts/oracle_vs_explore.py [--batch named|older|examples]
 [--all-towns]
 [--workers 2] [--json FILE]
 """

@@ -1,4 +1,4 @@
-"""How far can the paper's premise go in this world? Bounds for issue #31's targets 1 and 3.
+"""How far can the paper's premise go in this world? Bounds for the world v2 calibration's targets 1 and 3.
 
 Two parts, both on explore and the oracle only (no learner):
 
@@ -7,15 +7,18 @@ Two parts, both on explore and the oracle only (no learner):
    the driver only after its commit point (a swerve or a miss) or after the stop line (a miss), from the
    driver's per-prompt reaction time (lognormal, :meth:`pernav.world.drivers.Driver.reaction_draw`) and
    the one-second decision step (a prompt is said up to one step before its lead runs out).
-2. **What the measured episodes allow** (from a ``calibration.json`` of ``recipes/world_calibration.py``):
+2. **What the measured episodes allow** (from a ``calibration.json`` of ``docs/research/scripts/world_calibration.py``):
    the targets recomputed as if every late prompt that made the driver swerve had also ended in a
    collision, and as if it had also cost a missed turn (the paired cost of one missed turn, fitted on
    the same episodes). These are upper bounds for any mechanism that only gives late prompts worse
    consequences: it cannot make more prompts late.
 
 Usage:
-    .venv/bin/python recipes/premise_bound.py OUT [--calibration docs/figures/world_v2/judged/calibration.json]
-        [--speed 10] [--probe]
+    git show 4cd6bc4:docs/figures/world_v2/judged/calibration.json > calibration.json  # the judged calibration
+    .venv/bin/python docs/research/scripts/premise_bound.py OUT [--calibration calibration.json] [--speed 10] [--probe]
+
+Without ``--calibration`` it reads the judged calibration where it lay before it was archived (``none``: part 1
+only). The targets are those of docs/research/world_v2_preregistration.md.
 
 Writes ``OUT/premise_bound.json`` and ``OUT/premise_bound.md``; refuses an existing ``OUT`` (exit 2).
 """

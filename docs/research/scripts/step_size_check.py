@@ -7,13 +7,13 @@ left out), the loss on tau itself, and a 2-fold loss on tau (adapt on one half i
 it compares rules for the step: fixed steps, and the sufficient-decrease (Armijo) backtracking from alpha
 that ``train.backtrack`` uses, for several constants c. Printed and written to ``--json``.
 
-Measured (seeds 0-2, Town1 and Town3, 36 rounds; docs/figures/planning/step_size.json): the paper's alpha
+Measured on world v1 (seeds 0-2, Town1 and Town3, 36 rounds; 4cd6bc4:docs/figures/planning/step_size.json): the paper's alpha
 0.01 lowers the held-out loss in 27 of 36 rounds (mean ratio to unadapted 0.952), alpha 0.005 in 31 (0.933),
-Armijo c=0.5 from alpha in 31 (0.923, the lowest mean). See docs/findings.md, "One step, how long?".
+Armijo c=0.5 from alpha in 31 (0.923, the lowest mean). See docs/research/findings.md, "One step, how long?".
 
-Run: .venv/bin/python recipes/step_size_check.py --seeds 0 1 2 --towns Town1 Town3 --out runs/step_size \
-    --json docs/figures/planning/step_size.json  (about 4 min per town and seed)
-     .venv/bin/python recipes/step_size_check.py --summarize runs/step_size --json FILE  (no new runs)
+Run: .venv/bin/python docs/research/scripts/step_size_check.py --seeds 0 1 2 --towns Town1 Town3 --out runs/step_size \
+    --json FILE  (about 4 min per town and seed)
+     .venv/bin/python docs/research/scripts/step_size_check.py --summarize runs/step_size --json FILE  (no new runs)
 """
 
 from __future__ import annotations

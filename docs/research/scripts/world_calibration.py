@@ -1,18 +1,18 @@
-"""World calibration (issue #31): explore vs the oracle over the paper schedule's online rounds.
+"""World calibration (world v2): explore vs the oracle over the paper schedule's online rounds.
 
 Every (town, online round, route, seed) is driven twice on the same episode seed, once with explore and
 once with the oracle (paired). Only these two rule policies are driven: no learner result enters a world
 parameter. Writes ``OUT/calibration.json`` (every episode) and ``OUT/calibration.md`` (the table and the
-issue's targets, each marked met or not).
+targets of docs/research/world_v2_preregistration.md, each marked met or not).
 
 Usage:
-    .venv/bin/python recipes/world_calibration.py OUT [--seeds 0 1 2] [--routes 10] [--towns ...]
+    .venv/bin/python docs/research/scripts/world_calibration.py OUT [--seeds 0 1 2] [--routes 10] [--towns ...]
         [--n-traffic N] [--workers 2] [--population | --average]
 
 Episode seed of route r in round i with seed s: ``10000 * s + 100 * i + r``.
 
 Example (seconds, one town, one route, two rounds):
-    .venv/bin/python recipes/world_calibration.py /tmp/cal --towns Town1 --routes 1 --rounds 2 --seeds 0
+    .venv/bin/python docs/research/scripts/world_calibration.py /tmp/cal --towns Town1 --routes 1 --rounds 2 --seeds 0
 """
 
 from __future__ import annotations
