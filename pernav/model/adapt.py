@@ -35,6 +35,7 @@ from collections.abc import Callable
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from pernav.model.actions import with_action_indices
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 
@@ -85,6 +86,9 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
 
     ``loss_fn``: the loss the step descends, ``loss_fn(model, windows [N, L], params=...)``; the paper's L-step
     loss (:func:`~pernav.model.losses.multistep_loss`) by default, e.g. ``single_step_loss`` or your own.
+
+    ``trajectory``'s actions may be categorical or one-hot (TorchRL's ``OneHot``): both give the same adapted
+    parameters.
     """
     if backtrack is not None and not (0.0 < backtrack < 1.0 and first_order):
         raise ValueError(f"backtrack must be in (0, 1) and needs first_order=True, got {backtrack} "
@@ -94,6 +98,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
             and (not model.n_context or k == "context")]
     if not keys:
         raise ValueError("no parameter requires grad: nothing to adapt")
+    # one-hot actions (TorchRL's OneHot spec) as indices, once: a custom loss_fn sees the same windows either way
+    trajectory = with_action_indices(trajectory, n_actions=getattr(model, "n_actions", None))
     windows = trajectory_windows(trajectory, L, L if stride is None else stride)
     with torch.enable_grad():
         loss = loss_fn(model, windows, params=params)

@@ -4,6 +4,8 @@ parameters (any :class:`~tensordict.TensorDict` of the model's parameters, e.g. 
 A batch is a tensordict of shape ``[B, L]`` of consecutive transitions of one trajectory each (what
 :class:`~pernav.trainer.buffers.RoundBuffers` samples), with ``"history"``, ``"action"``, ``"observation"``
 and ``("next", "observation")``, and for a model that reads the road ``"road"`` (or the env's ``"route_ahead"``).
+Actions are categorical (``[B, L]``) or one-hot (``[B, L, A]``, TorchRL's ``OneHot``): the same data gives the same
+loss either way (:func:`~pernav.model.actions.action_indices`).
 
 Example:
     >>> import torch
@@ -25,6 +27,7 @@ from contextlib import nullcontext
 import torch
 from tensordict import TensorDictBase
 
+from pernav.model.actions import action_indices
 from pernav.model.dynamics import DynamicsModel, road_of
 
 __all__ = ["multistep_loss", "single_step_loss", "using"]
@@ -44,7 +47,7 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
     ``[E]``) every member's at once (``[E]``): the same batch, each member rolling out its own predictions.
     ``weights`` (``[B]``, or ``[E, B]`` per member) weigh the windows (a weighted mean over the batch)."""
     history = batch["history"][:, 0]
-    actions = batch["action"]
+    actions = action_indices(batch["action"], batch.shape, getattr(model, "n_actions", None))  # one-hot: indices
     states = batch["observation"]
     next_states = batch["next", "observation"]
     # the road at every step is the one ahead of the *true* car (what the data stores), while imagine() gives
