@@ -2,6 +2,7 @@
 (one of them imported a module renamed months before anybody ran it again)."""
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -15,3 +16,9 @@ def test_a_research_script_imports(script: Path) -> None:
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)  # runs the imports and definitions, not the script's main part
     assert module.__doc__, f"{script.name} does not say what it checks"
+
+
+def test_the_research_readme_lists_every_script_and_no_other() -> None:
+    readme = (Path(__file__).parents[1] / "docs" / "research" / "README.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"^\| `(\w+\.py)` \|", readme, flags=re.MULTILINE))
+    assert listed == {s.name for s in SCRIPTS}, "docs/research/README.md's Scripts table: one row per script"
