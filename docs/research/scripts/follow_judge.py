@@ -1,4 +1,4 @@
-"""Issue 48's three remaining looks, each run once on the seeds pre-registered in
+"""Three follow-up looks at the belief learner, each run once on the seeds pre-registered in
 docs/figures/follow/preregistration.json (pernav.study.follow): the sweep's "turn" leads, the personalization
 curve over repeated drives, the headroom benchmark on fresh seeds.
 
