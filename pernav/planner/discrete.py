@@ -55,7 +55,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey
-from torchrl.data import Categorical, Composite, OneHot
+from torchrl.data import Categorical, Composite, OneHot, TensorSpec
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules.planners import MPCPlannerBase
 
@@ -82,6 +82,25 @@ def _device(roots: TensorDictBase, keys: list) -> torch.device:
     return roots.device if roots.device is not None else roots.get(keys[0]).device
 
 
+def _action_layout(spec: TensorSpec, batch_size: torch.Size) -> tuple[bool, int, torch.dtype, tuple[int, ...]]:
+    """Whether ``spec`` is one-hot, its number of actions, dtype and per-root shape; ``TypeError`` for a spec that
+    is not one ``Categorical`` or ``OneHot`` action (its subclasses ``MultiCategorical``, ``Binary``,
+    ``MultiOneHot`` encode several actions at once)."""
+    if type(spec) not in (Categorical, OneHot):
+        hint = ("for continuous actions use torchrl's CEMPlanner or MPPIPlanner" if spec.domain == "continuous" else
+                "it plans one discrete action per step: MultiCategorical, MultiOneHot and Binary are not supported")
+        raise TypeError(f"DiscreteTreeSearchPlanner needs a Categorical or OneHot action spec, got "
+                        f"{type(spec).__name__} ({hint})")
+    shape = tuple(spec.shape[len(batch_size):]) if tuple(spec.shape[: len(batch_size)]) == tuple(batch_size) \
+        else tuple(spec.shape)
+    n = int(spec.space.n)
+    if shape not in (((n,),) if isinstance(spec, OneHot) else ((), (1,))):
+        expected = (n,) if isinstance(spec, OneHot) else "() or (1,)"
+        raise TypeError(f"DiscreteTreeSearchPlanner plans one action per step, got a {type(spec).__name__} spec of "
+                        f"per-step shape {shape}: several actions are not supported (expected {expected})")
+    return isinstance(spec, OneHot), n, spec.dtype, shape
+
+
 class DiscreteTreeSearchPlanner(MPCPlannerBase):
     """Exhaustive or beam tree search over a discrete action space, scored by the env's reward.
 
@@ -103,6 +122,11 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
     The search is exact: it returns the sequence with the highest return (ties go to the sequence that comes
     first in the order of the action indices), as a brute-force enumeration of the same tree would. A sequence
     whose return is NaN never wins; :attr:`nonfinite` counts decisions where some return was not finite.
+
+    Actions are written (to the env's step and as the output) in the spec's own dtype and shape: a bool one-hot for
+    ``OneHot(n)``, ``[..., 1]`` for ``Categorical(n, shape=(1,))``; so ``MPCPlannerBase.forward`` keeps the output as
+    it is (it would project an action outside the spec with ``torch.multinomial``, a draw from the global
+    generator). Specs of several actions (``MultiCategorical``, ``MultiOneHot``, ``Binary``) are refused.
     """
 
     def __init__(self, env, planning_horizon: int, beam_width: int | None = None,
@@ -115,11 +139,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         if beam_width is not None and int(beam_width) < 1:
             raise ValueError(f"beam_width must be >= 1 or None, got {beam_width}")
         spec = env.full_action_spec[action_key] if isinstance(env.action_spec, Composite) else env.action_spec
-        if not isinstance(spec, (Categorical, OneHot)):
-            raise TypeError(f"DiscreteTreeSearchPlanner needs a Categorical or OneHot action spec, got "
-                            f"{type(spec).__name__} (for continuous actions use torchrl's CEMPlanner or MPPIPlanner)")
-        self.one_hot = isinstance(spec, OneHot)
-        self.n_actions = int(spec.space.n)
+        self.one_hot, self.n_actions, self.action_dtype, self.action_shape = _action_layout(spec, env.batch_size)
         self.planning_horizon = int(planning_horizon)
         self.beam_width = None if beam_width is None else int(beam_width)
         self.reward_key, self.mask_key, self.action_key = _key(reward_key), mask_key, action_key
@@ -181,7 +201,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """The children of flat nodes (``{key: [M, ...]}``) after ``actions`` ``[M]``: every entry the env's step
         writes (next state, reward, done), as ``env.step`` computes them (its ``_step``, reward and done)."""
         data = dict(nodes)
-        data[self.action_key] = torch.nn.functional.one_hot(actions, self.n_actions) if self.one_hot else actions
+        data[self.action_key] = self._encoded(actions)
         if self.fast_path:
             return self.env.world_model.tensor_step(data)
         td = TensorDict(batch_size=[actions.shape[0]], device=actions.device)
@@ -302,8 +322,16 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         self.last = self.search(td.reshape(-1))
         first = self.last.actions[:, 0]
         self.planning_s += time.perf_counter() - t0
+        # in the spec's own dtype and shape: MPCPlannerBase.forward then keeps it as it is (an action outside the
+        # spec, e.g. an int64 one-hot for a bool spec, it would "project" with torch.multinomial)
+        return self._encoded(first).reshape(tuple(td.shape) + self.action_shape)
+
+    def _encoded(self, actions: torch.Tensor) -> torch.Tensor:
+        """Action indices ``[M]`` as the spec writes them: ``[M, A]`` one-hot or ``[M]`` (``[M, 1]``) indices, in
+        the spec's dtype (the indices themselves, untouched, for a default ``Categorical``)."""
         if self.one_hot:
-            first = torch.nn.functional.one_hot(first, self.n_actions)
-            return first.reshape(*td.shape, self.n_actions)
-        return first.reshape(td.shape)
+            return torch.nn.functional.one_hot(actions, self.n_actions).to(self.action_dtype)
+        if actions.dtype != self.action_dtype:
+            actions = actions.to(self.action_dtype)
+        return actions.reshape(-1, *self.action_shape) if self.action_shape else actions
 

@@ -43,7 +43,7 @@ class _Dynamics(nn.Module):
         self.one_hot = one_hot
 
     def index(self, action: torch.Tensor) -> torch.Tensor:
-        return action.argmax(-1) if self.one_hot else action
+        return action.long().argmax(-1) if self.one_hot else action  # OneHot(A)'s actions are bool
 
     def forward(self, x: torch.Tensor, action: torch.Tensor):
         a = self.index(action)
