@@ -1,4 +1,4 @@
-"""Does the navigation follow its driver? The three looks of issue 48 that the split benchmark does not give
+"""Does the navigation follow its driver? Three looks the split benchmark does not give
 (docs/personal.md, "Following the driver"), each fixed here before any learner ran on its seeds:
 
 * **the sweep's leads**: in the ``personal_sweep`` preset (the average driver, reaction time shifted), a learner's
