@@ -28,10 +28,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torch import nn
-from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.data import Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
+from pernav.model.actions import action_indices
 from pernav.model.dynamics import DynamicsModel
 
 __all__ = ["ImaginedEnv", "PlainWorldModel", "model_device"]
@@ -95,11 +96,14 @@ def model_device(model: nn.Module, device: str | torch.device | None = None, own
 class _Imagine(nn.Module):
     """One imagined step: next state, next window, reward and done."""
 
-    def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None) -> None:
+    def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None,
+                 one_hot: bool = False) -> None:
         super().__init__()
-        self.model, self.reward_fn, self.termination_fn = model, reward_fn, termination_fn
+        self.model, self.reward_fn, self.termination_fn, self.one_hot = model, reward_fn, termination_fn, one_hot
 
     def forward(self, observation: torch.Tensor, history: torch.Tensor, action: torch.Tensor):
+        if self.one_hot:  # a OneHot spec's actions: the model and reward_fn read indices either way
+            action = action_indices(action, history.shape[:-2], self.model.n_actions)
         action = action.reshape(history.shape[:-2]) if action.numel() == history.shape[:-2].numel() else action
         next_state = self.model(history, action)
         window = self.model.next_window(history, action, next_state)
@@ -120,15 +124,26 @@ class ImaginedEnv(ModelBasedEnvBase):
         termination_fn: ``next_state -> bool [...]`` (an imagined failure ends the rollout's reward), or ``None``.
         device: the env's device: the model's (``None``), or the device the model already lives on (a model
             elsewhere is refused, not moved in place: :func:`model_device`).
+        action_spec: ``Categorical(n_actions)`` (``None``, the default) or a ``OneHot(n_actions)`` spec, e.g. the
+            real env's (``GymEnv``'s default), so that a planner on this env writes the actions the real env takes;
+            ``reward_fn`` reads indices either way.
 
     Reset needs a starting point (``"observation"`` and ``"history"``, e.g. a real env's current tensordict);
     without one it starts from the zero state.
     """
 
     def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
-                 device: str | torch.device | None = None) -> None:
+                 device: str | torch.device | None = None, action_spec: Categorical | OneHot | None = None) -> None:
         device = model_device(model, device, type(self).__name__)
-        transition = (_Imagine(model, reward_fn, termination_fn), ["observation", "history", "action"],
+        if action_spec is not None and (type(action_spec) not in (Categorical, OneHot)
+                                        or action_spec.space.n != model.n_actions):
+            raise ValueError(f"action_spec must be a Categorical or OneHot spec of the model's {model.n_actions} "
+                             f"actions, got {action_spec}")
+        one_hot = isinstance(action_spec, OneHot)  # rebuilt without the real env's batch dimensions and device
+        action_spec = (OneHot(model.n_actions, dtype=action_spec.dtype) if one_hot else
+                       Categorical(model.n_actions) if action_spec is None else
+                       Categorical(model.n_actions, dtype=action_spec.dtype))
+        transition = (_Imagine(model, reward_fn, termination_fn, one_hot), ["observation", "history", "action"],
                       ["observation", "history", "reward", "done", "terminated"])
         keep = (nn.Identity(), ["reward"], ["reward"])  # the reward is computed with the step
         super().__init__(PlainWorldModel(transition, keep), device=device)
@@ -138,7 +153,7 @@ class ImaginedEnv(ModelBasedEnvBase):
                         history=Unbounded((model.K, model.state_dim + model.n_actions), dtype=dtype))
         self.observation_spec = obs
         self.state_spec = obs.clone()
-        self.action_spec = Categorical(model.n_actions)
+        self.action_spec = action_spec
         self.reward_spec = Unbounded((1,), dtype=dtype)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
