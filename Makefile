@@ -29,6 +29,11 @@ test: $(STAMP)
 test-fast: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules tests pernav
 
+# docs/paper.md's generated section, docs/paper/fig3.png and regret.png from docs/paper/results/*.json (seconds)
+.PHONY: paper
+paper: $(STAMP)
+	$(BIN)/python -m pernav.study.paper --build
+
 lint: $(STAMP)
 	$(BIN)/ruff check pernav recipes tests docs/research/scripts
 
