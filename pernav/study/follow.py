@@ -285,7 +285,7 @@ def plot_sweep_leads(results: list[dict[str, Any]], path: str,
             ax.fill_between(x, lo, hi, alpha=0.15)
         ax.set_title(town)
         ax.set_xlabel("the driver's reaction time (s)")
-        ax.set_ylabel("'turn' prompt's lead (s before the commit point)")
+        ax.set_ylabel("'turn' prompt's lead (s: distance to the junction / speed)")
         ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
