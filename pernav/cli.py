@@ -314,7 +314,7 @@ def _personalize(args: argparse.Namespace) -> int:
         kept = sum(not d["interrupted"] for d in session.drives)
         print(f"resuming {record}: {kept} drive(s) kept, the model after {len(session.learned)} round(s)")
     result = session.run()
-    print(summary_markdown(result.summary))
+    print(f"summary: {result.folder}/summary.md" if args.hide_cost else summary_markdown(result.summary))
     if result.interrupted:
         print("the session was stopped early; what was driven is kept" + (
             "" if args.learner == "belief" else f" (continue it: pernav personalize ... --record {record} --resume)"))

@@ -141,8 +141,8 @@ class BeliefSession:
             record["file"] = str(save_drive(result.trajectory, record, self.record_dir, name))
         self.drives.append(record)
         state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
-        self.announce(f"  {state} after {m.get('time', 0):.0f} s: tracking cost {m.get('tracking_cost', 0):.0f}, "
-                      f"missed turns {m.get('missed_turns', 0)}")
+        cost = "" if self.hide_cost else f"tracking cost {m.get('tracking_cost', 0):.0f}, "
+        self.announce(f"  {state} after {m.get('time', 0):.0f} s: {cost}missed turns {m.get('missed_turns', 0)}")
         if result.trajectory is not None and not m["interrupted"]:
             self._learn(number, result.trajectory)
         return result

@@ -401,7 +401,8 @@ class PersonalSession:
         self.drives.append(record)
         self._save_progress()
         state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
-        self.announce(f"  {state} after {m.get('time', 0):.0f} s: tracking cost {m.get('tracking_cost', 0):.0f}, "
+        cost = "" if self.hide_cost else f"tracking cost {m.get('tracking_cost', 0):.0f}, "  # not with --hide-cost
+        self.announce(f"  {state} after {m.get('time', 0):.0f} s: {cost}"
                       f"vehicle collisions {m.get('vehicle_collisions', 0)}, kerb strikes {m.get('edge_strikes', 0)}, "
                       f"missed turns {m.get('missed_turns', 0)}")
         return result

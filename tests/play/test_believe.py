@@ -65,6 +65,13 @@ def test_the_session_keeps_its_drives_and_the_posterior(session):
     assert "| drive 3 |" in (record / "summary.md").read_text()
 
 
+def test_hide_cost_keeps_the_cost_out_of_what_the_person_is_told(belief_study):
+    lines: list[str] = []
+    BeliefSession(belief_study, "Town1", [0, 1], n_traffic=0, announce=lines.append, hide_cost=True).run()
+    assert any("arrived" in line or "did not arrive" in line for line in lines)
+    assert not any("cost" in line for line in lines)
+
+
 def test_the_prompts_follow_the_belief():
     assert prompt_lead({}) < prompt_lead({"reaction_time": 2.0}) < prompt_lead({"reaction_time": 3.0})
     assert session_class("belief") is BeliefSession and session_class("adapt") is PersonalSession
@@ -114,3 +121,12 @@ def test_a_study_without_the_belief_learner_is_refused_by_name(belief_study, tmp
     (folder / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(PlayError, match="did not run the belief learner"):
         BeliefSession(other, "Town1", [0, 1])
+
+
+def test_cli_hide_cost_prints_no_cost_in_the_terminal(belief_study, tmp_path, capsys):
+    rec = tmp_path / "me"
+    assert main(["personalize", "--study", str(belief_study), "--town", "Town1", "--routes", "0", "1", "--headless",
+                 "--no-audio", "--traffic", "0", "--record", str(rec), "--learner", "belief", "--hide-cost"]) == 0
+    out = capsys.readouterr().out
+    assert "cost" not in out.replace(str(rec), "") and "your reaction time" in out
+    assert "tracking cost" in (rec / "summary.md").read_text()
