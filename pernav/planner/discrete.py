@@ -15,7 +15,9 @@ sequence scores exactly as ``env.rollout`` would play it (the env's own ``_step`
 its world model alone is stepped on plain tensors instead, the same computation without TensorDicts
 (:attr:`DiscreteTreeSearchPlanner.fast_path`). An action mask (``mask_key``: ``[..., A]`` for every level, or
 ``[..., H, A]`` one per level) prunes forbidden actions from the tree. The input tensordict may have any
-batch shape; each root is searched on its own, all in the same batched env calls.
+batch shape; each root is searched on its own, all in the same batched env calls. An env built with a
+``batch_size`` (whose ``step`` takes exactly that shape) is stepped one node per root and slot, root ``b`` in slot
+``b mod batch_size.numel()``, as ``env.rollout`` on those roots plays it.
 
 Example:
     >>> import torch
@@ -111,9 +113,9 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         beam_width: keep only this many best nodes per level and root (``None``: exhaustive). A beam at least as
             wide as the tree is the exhaustive search.
         reward_key: where the env's step writes its reward (``("next", "reward")`` for TorchRL envs).
-        mask_key: an input entry of booleans, ``[..., A]`` or ``[..., H', A]`` (level ``h`` reads row ``h``):
-            actions it forbids are not expanded (a root with none allowed at a level: ``ValueError``). ``None``:
-            every action is allowed.
+        mask_key: an input entry of booleans, ``[..., A]`` or ``[..., H', A]`` with ``H' >= H`` (level ``h``
+            reads row ``h``): actions it forbids are not expanded (a root with none allowed at a level, or a mask
+            of another width than A: ``ValueError``). ``None``: every action is allowed.
         value_module: optional ``TensorDictModule`` reading a leaf's state and writing ``value_key``, added to
             the return of each complete sequence (a terminal value; not applied after ``done``).
         value_key: where ``value_module`` writes.
@@ -163,8 +165,24 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         that entry already read, as :meth:`search` does once per search)."""
         if self.mask_key is None:
             return torch.ones(roots.shape[0], self.n_actions, dtype=torch.bool, device=_device(roots, self.state_keys))
-        mask = roots.get(self.mask_key).bool() if mask is None else mask
+        mask = self._mask(roots, level + 1) if mask is None else mask
         return mask[:, level] if mask.ndim == 3 else mask
+
+    def _mask(self, roots: TensorDictBase, levels: int) -> torch.Tensor:
+        """The ``mask_key`` entry of flat roots as booleans, ``ValueError`` unless it is ``[B, A]`` or ``[B, H', A]``
+        with at least ``levels`` rows (a bare ``IndexError`` otherwise, or a silently wrong action set)."""
+        mask = roots.get(self.mask_key)
+        shape, name = tuple(mask.shape), f"{type(self).__name__}: the mask {self.mask_key!r}"
+        if mask.ndim - roots.batch_dims not in (1, 2):
+            raise ValueError(f"{name} must be [..., A] or [..., H, A] for roots of batch shape {tuple(roots.shape)}, "
+                             f"got shape {shape}")
+        if shape[-1] != self.n_actions:
+            raise ValueError(f"{name} has width {shape[-1]} (shape {shape}) but the env has {self.n_actions} actions "
+                             "(its action spec): one column per action")
+        if mask.ndim - roots.batch_dims == 2 and shape[-2] < levels:
+            raise ValueError(f"{name} has {shape[-2]} level row(s) (shape {shape}) for a search of {levels} levels: "
+                             "one row per level")
+        return mask.bool()
 
     def step_reward(self, roots: TensorDictBase, children: dict, actions: torch.Tensor, level: int) -> torch.Tensor:
         """``[B, N]``: the reward of the step that led to each node (the env's, at ``reward_key``). ``children``
@@ -198,17 +216,45 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
                 and callable(getattr(env.world_model, "tensor_step", None)))
 
     def _step(self, nodes: dict, actions: torch.Tensor) -> dict:
-        """The children of flat nodes (``{key: [M, ...]}``) after ``actions`` ``[M]``: every entry the env's step
-        writes (next state, reward, done), as ``env.step`` computes them (its ``_step``, reward and done)."""
+        """The children of flat nodes (``{key: [B * k, ...]}``) after ``actions`` ``[B, k]`` (``k`` per root):
+        every entry the env's step writes (next state, reward, done), as ``env.step`` computes them (its
+        ``_step``, reward and done)."""
         data = dict(nodes)
-        data[self.action_key] = self._encoded(actions)
+        data[self.action_key] = self._encoded(actions.reshape(-1))
         if self.fast_path:
             return self.env.world_model.tensor_step(data)
-        td = TensorDict(batch_size=[actions.shape[0]], device=actions.device)
+        if self.env.batch_size:
+            return self._step_in_slots(data, *actions.shape)
+        td = TensorDict(batch_size=[actions.numel()], device=actions.device)
         for key, value in data.items():
             td.set(key, value)
         out = self.env.step(td).get("next")
         return {key: out.get(key) for key in out.keys(True, True)}
+
+    def _step_in_slots(self, data: dict, roots: int, k: int) -> dict:
+        """``env.step`` for an env with a batch size, which steps exactly that shape: ``k`` calls, each with one
+        node per root in the root's own slot (root ``b`` in slot ``b mod P``), as ``env.rollout`` plays the roots."""
+        shape = self.env.batch_size
+        slots = shape.numel()
+        if roots % slots:
+            raise ValueError(f"{type(self).__name__}: the env steps batches of exactly {tuple(shape)}, one root per "
+                             f"slot; got {roots} roots, not a multiple of {slots} (give roots of shape "
+                             f"[..., {', '.join(map(str, shape))}])")
+        groups = roots // slots
+
+        def to_slots(v: torch.Tensor) -> torch.Tensor:  # [groups * slots * k, ...] -> [groups * k, *shape, ...]
+            v = v.reshape(groups, slots, k, *v.shape[1:]).transpose(1, 2)
+            return v.reshape(groups * k, *shape, *v.shape[3:])
+
+        def from_slots(v: torch.Tensor) -> torch.Tensor:
+            v = v.reshape(groups, k, slots, *v.shape[1 + len(shape):]).transpose(1, 2)
+            return v.reshape(groups * slots * k, *v.shape[3:])
+
+        td = TensorDict(batch_size=[groups * k, *shape], device=data[self.action_key].device)
+        for key, value in data.items():
+            td.set(key, to_slots(value))
+        out = torch.stack([self.env.step(td[i]).get("next") for i in range(groups * k)])
+        return {key: from_slots(out.get(key)) for key in out.keys(True, True)}
 
     @staticmethod
     def _done(children: dict, shape: tuple[int, int]) -> torch.Tensor | None:
@@ -222,9 +268,12 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         """The best sequence from each root of a flat ``[B]`` tensordict (see the class docstring)."""
         B = roots.shape[0]
         H = self.levels(roots)
-        mask = None if self.mask_key is None else roots.get(self.mask_key).bool()  # once per search, not per level
-        nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
         device = _device(roots, self.state_keys)  # every tensor made here lives with the roots' state
+        if device.type == "meta":  # a search reads values (its choices are data-dependent): refuse before it starts
+            raise ValueError(f"{type(self).__name__}: the roots are on the 'meta' device, which holds shapes but no "
+                             "values to search from; move them to a real device (e.g. roots.to('cpu'))")
+        mask = None if self.mask_key is None else self._mask(roots, H)  # once per search, not per level
+        nodes = {k: roots.get(k) for k in self.state_keys}  # flat [B * N, ...]: N nodes per root
         parent_count = 1
         seqs = torch.zeros(B, 1, 0, dtype=torch.long, device=device)
         ret = torch.zeros(B, 1, device=device)  # promoted to the reward's dtype (float64 stays float64)
@@ -236,7 +285,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
             # every (node, action) pair the mask allows, packed per root in order (root-major, action-minor)
             level_allowed = self.allowed(roots, level, mask)  # [B, A]
             k, index, parent, action, keep = self._expand(level_allowed, valid, parent_count, rows, level)
-            out = self._step({key: v[index] for key, v in nodes.items()}, action.reshape(-1))
+            out = self._step({key: v[index] for key, v in nodes.items()}, action)
             children = {key: out[key].reshape(B, k, *out[key].shape[1:]) for key in self.state_keys}
             children.update({key: out[key] for key in self._extra_keys if key in out})
             evaluations += B * k
