@@ -26,7 +26,7 @@ from pernav.env.torchrl_env import info_action_module
 from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlaySession
-from pernav.play.personal import PersonalResult, _policy_row, study_settings
+from pernav.play.personal import PersonalResult, _policy_row, study_settings, summary_markdown
 from pernav.play.sessions import check_session
 from pernav.study.checkpoints import final_belief
 from pernav.study.config import BELIEF_DEFAULTS
@@ -200,7 +200,7 @@ class BeliefSession:
             atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
             atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
                 f"# Personal timing: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
-                f"{belief_markdown(summary)}\n"))
+                f"{summary_markdown(summary)}\n"))
         if self.speaker is not None and hasattr(self.speaker, "close"):
             self.speaker.close()
         return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)
