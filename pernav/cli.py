@@ -369,7 +369,7 @@ def _add_study_parser(sub: Any) -> None:
     """``pernav study``: its many options in one place."""
     p = sub.add_parser("study", help="the online meta-learning study (Algorithm 1, every method)")
     p.add_argument("--preset", default="default",
-                   help="smoke | default | paper | personal | personal_paper | personal_sweep")
+                   help="smoke | default | paper | personal | personal_paper | personal_sweep | split | repeat")
     p.add_argument("--out", required=True, help="output folder (results.json, report.md, figures/)")
     p.add_argument("--schedule", help="YAML/JSON schedule file replacing the preset's schedule (docs/study.md)")
     p.add_argument("--towns", nargs="+", help="towns to run (default: the preset's)")

@@ -1,5 +1,5 @@
 """Study configuration and its presets, one YAML file each in ``pernav/study/presets/`` (``smoke``, ``default``,
-``paper``, ``personal``, ``personal_paper``, ``personal_sweep``).
+``paper``, ``personal``, ``personal_paper``, ``personal_sweep``, ``split``, ``repeat``).
 
 Example:
     >>> cfg = preset("smoke")
