@@ -34,6 +34,7 @@ from collections.abc import Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
 
 from pernav.model.actions import with_action_indices
 from pernav.model.dynamics import DynamicsModel
@@ -67,7 +68,7 @@ def trajectory_windows(trajectory: TensorDictBase, L: int, stride: int = 1) -> T
 def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
           first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None,
           max_norm: float | None = None, backtrack: float | None = None,
-          loss_fn: LossFn = multistep_loss) -> TensorDictBase:
+          loss_fn: LossFn = multistep_loss, action_key: NestedKey = "action") -> TensorDictBase:
     """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over the L-slices of ``tau``
     (by default the slices that tile ``tau``, ``stride=L``: every transition is predicted once, at every
     rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
@@ -87,8 +88,9 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     ``loss_fn``: the loss the step descends, ``loss_fn(model, windows [N, L], params=...)``; the paper's L-step
     loss (:func:`~pernav.model.losses.multistep_loss`) by default, e.g. ``single_step_loss`` or your own.
 
-    ``trajectory``'s actions may be categorical or one-hot (TorchRL's ``OneHot``): both give the same adapted
-    parameters.
+    ``trajectory``'s actions (at ``action_key``) may be categorical or one-hot (TorchRL's ``OneHot``): both give the
+    same adapted parameters. A trajectory without ``action_key`` is passed to ``loss_fn`` as it is (a loss with
+    keys of its own reads them; :func:`~pernav.model.losses.multistep_loss` reads one-hot actions itself).
     """
     if backtrack is not None and not (0.0 < backtrack < 1.0 and first_order):
         raise ValueError(f"backtrack must be in (0, 1) and needs first_order=True, got {backtrack} "
@@ -99,7 +101,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     if not keys:
         raise ValueError("no parameter requires grad: nothing to adapt")
     # one-hot actions (TorchRL's OneHot spec) as indices, once: a custom loss_fn sees the same windows either way
-    trajectory = with_action_indices(trajectory, n_actions=getattr(model, "n_actions", None))
+    if action_key in trajectory.keys(True):
+        trajectory = with_action_indices(trajectory, action_key, n_actions=getattr(model, "n_actions", None))
     windows = trajectory_windows(trajectory, L, L if stride is None else stride)
     with torch.enable_grad():
         loss = loss_fn(model, windows, params=params)

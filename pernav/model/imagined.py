@@ -127,13 +127,18 @@ class ImaginedEnv(ModelBasedEnvBase):
         action_spec: ``Categorical(n_actions)`` (``None``, the default) or a ``OneHot(n_actions)`` spec, e.g. the
             real env's (``GymEnv``'s default), so that a planner on this env writes the actions the real env takes;
             ``reward_fn`` reads indices either way.
+        observation_key, history_key, action_key: the entry names (the real env's and its
+            :class:`~pernav.transforms.HistoryWindow`'s, e.g. ``in_keys``/``out_keys``); a planner on this env takes
+            the same ``action_key``.
 
-    Reset needs a starting point (``"observation"`` and ``"history"``, e.g. a real env's current tensordict);
+    Reset needs a starting point (``observation_key`` and ``history_key``, e.g. a real env's current tensordict);
     without one it starts from the zero state.
     """
 
     def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
-                 device: str | torch.device | None = None, action_spec: Categorical | OneHot | None = None) -> None:
+                 device: str | torch.device | None = None, action_spec: Categorical | OneHot | None = None, *,
+                 observation_key: NestedKey = "observation", history_key: NestedKey = "history",
+                 action_key: NestedKey = "action") -> None:
         device = model_device(model, device, type(self).__name__)
         if action_spec is not None and (type(action_spec) not in (Categorical, OneHot)
                                         or action_spec.space.n != model.n_actions):
@@ -143,23 +148,28 @@ class ImaginedEnv(ModelBasedEnvBase):
         action_spec = (OneHot(model.n_actions, dtype=action_spec.dtype) if one_hot else
                        Categorical(model.n_actions) if action_spec is None else
                        Categorical(model.n_actions, dtype=action_spec.dtype))
-        transition = (_Imagine(model, reward_fn, termination_fn, one_hot), ["observation", "history", "action"],
-                      ["observation", "history", "reward", "done", "terminated"])
+        transition = (_Imagine(model, reward_fn, termination_fn, one_hot), [observation_key, history_key, action_key],
+                      [observation_key, history_key, "reward", "done", "terminated"])
         keep = (nn.Identity(), ["reward"], ["reward"])  # the reward is computed with the step
         super().__init__(PlainWorldModel(transition, keep), device=device)
         self.dynamics = model
         dtype = model.out_mean.dtype  # a float64 model imagines float64 states
-        obs = Composite(observation=Unbounded((model.state_dim,), dtype=dtype),
-                        history=Unbounded((model.K, model.state_dim + model.n_actions), dtype=dtype))
+        self._start_keys = [observation_key, history_key]  # what reset copies from a starting point
+        obs = Composite()
+        obs[observation_key] = Unbounded((model.state_dim,), dtype=dtype)
+        obs[history_key] = Unbounded((model.K, model.state_dim + model.n_actions), dtype=dtype)
         self.observation_spec = obs
         self.state_spec = obs.clone()
-        self.action_spec = action_spec
+        if action_key == "action":
+            self.action_spec = action_spec
+        else:  # TorchRL's way to name the action: the full spec's key
+            self.full_action_spec = Composite({action_key: action_spec})
         self.reward_spec = Unbounded((1,), dtype=dtype)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        given = tensordict is not None and {"history", "observation"} <= set(tensordict.keys())
+        given = tensordict is not None and all(key in tensordict.keys(True) for key in self._start_keys)
         if given:
-            out = tensordict.select("observation", "history").clone()
+            out = tensordict.select(*self._start_keys).clone()
         else:
             out = self.state_spec.zero(tensordict.shape if tensordict is not None else self.batch_size)
         out.set("done", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))

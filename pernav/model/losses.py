@@ -5,7 +5,9 @@ A batch is a tensordict of shape ``[B, L]`` of consecutive transitions of one tr
 :class:`~pernav.trainer.buffers.RoundBuffers` samples), with ``"history"``, ``"action"``, ``"observation"``
 and ``("next", "observation")``, and for a model that reads the road ``"road"`` (or the env's ``"route_ahead"``).
 Actions are categorical (``[B, L]``) or one-hot (``[B, L, A]``, TorchRL's ``OneHot``): the same data gives the same
-loss either way (:func:`~pernav.model.actions.action_indices`).
+loss either way (:func:`~pernav.model.actions.action_indices`). Other entry names are given with
+``observation_key=``, ``action_key=`` and ``history_key=`` (e.g. ``functools.partial(multistep_loss,
+observation_key="obs")`` as a trainer's ``loss_fn``); the next state is read at ``("next", observation_key)``.
 
 Example:
     >>> import torch
@@ -26,6 +28,7 @@ from contextlib import nullcontext
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
 
 from pernav.model.actions import action_indices
 from pernav.model.dynamics import DynamicsModel, road_of
@@ -42,14 +45,18 @@ def using(model: torch.nn.Module, params: TensorDictBase | None):
 
 
 def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorDictBase | None = None,
-                  weights: torch.Tensor | None = None) -> torch.Tensor:
+                  weights: torch.Tensor | None = None, keys: tuple[NestedKey, NestedKey, NestedKey] = (
+                      "observation", "action", "history")) -> torch.Tensor:
     """The L-step loss of ``model`` (a scalar), or with ``ensemble`` (stacked member parameters, batch
     ``[E]``) every member's at once (``[E]``): the same batch, each member rolling out its own predictions.
-    ``weights`` (``[B]``, or ``[E, B]`` per member) weigh the windows (a weighted mean over the batch)."""
-    history = batch["history"][:, 0]
-    actions = action_indices(batch["action"], batch.shape, getattr(model, "n_actions", None))  # one-hot: indices
-    states = batch["observation"]
-    next_states = batch["next", "observation"]
+    ``weights`` (``[B]``, or ``[E, B]`` per member) weigh the windows (a weighted mean over the batch).
+    ``keys``: the observation, action and history entries."""
+    observation_key, action_key, history_key = keys
+    history = batch[history_key][:, 0]
+    actions = action_indices(batch[action_key], batch.shape, getattr(model, "n_actions", None))  # one-hot: indices
+    states = batch[observation_key]
+    next_states = batch.get(("next", observation_key) if isinstance(observation_key, str)
+                            else ("next", *observation_key))
     # the road at every step is the one ahead of the *true* car (what the data stores), while imagine() gives
     # the road ahead of the imagined car: later steps here see the true car's progress through the road's
     # first point (a partly teacher-forced loss; storing more of the route would let it track the prediction)
@@ -85,24 +92,30 @@ def _rollout_loss(model: DynamicsModel, batch: TensorDictBase, ensemble: TensorD
 
 
 def multistep_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None,
-                   weights: torch.Tensor | None = None) -> torch.Tensor:
+                   weights: torch.Tensor | None = None, *, observation_key: NestedKey = "observation",
+                   action_key: NestedKey = "action", history_key: NestedKey = "history") -> torch.Tensor:
     """The L-step loss (Eq. 4): roll the model forward autoregressively from the true window at the
     start of each ``[L]`` slice with the true actions, and compare predicted and true state differences
     (normalized differences in the model's ``delta`` layout, squared error, averaged over steps and batch).
 
     ``params`` with a batch dimension (an ensemble's stacked parameters, ``[E]``) gives every member's loss,
     ``[E]``, in one batched pass (equal to each member's own loss). ``weights`` (``[B]``, or ``[E, B]`` with an
-    ensemble) make it a weighted mean over the windows (bootstrap resampling, :meth:`EnsembleTrainer.fine_tuned`)."""
+    ensemble) make it a weighted mean over the windows (bootstrap resampling, :meth:`EnsembleTrainer.fine_tuned`).
+    ``observation_key``/``action_key``/``history_key``: the batch's entry names (module docstring)."""
     if batch.ndim != 2:
         raise ValueError(f"multistep_loss expects a [B, L] batch, got batch_size {tuple(batch.shape)}")
+    keys = (observation_key, action_key, history_key)
     if params is not None and params.batch_dims > 0:
-        return _rollout_loss(model, batch, ensemble=params, weights=weights)
+        return _rollout_loss(model, batch, ensemble=params, weights=weights, keys=keys)
     with using(model, params):
-        return _rollout_loss(model, batch, weights=weights)
+        return _rollout_loss(model, batch, weights=weights, keys=keys)
 
 
-def single_step_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None) -> torch.Tensor:
-    """One-step prediction loss on every transition of the batch (each from its true window)."""
+def single_step_loss(model: DynamicsModel, batch: TensorDictBase, params: TensorDictBase | None = None, *,
+                     observation_key: NestedKey = "observation", action_key: NestedKey = "action",
+                     history_key: NestedKey = "history") -> torch.Tensor:
+    """One-step prediction loss on every transition of the batch (each from its true window); the keys as in
+    :func:`multistep_loss`."""
     flat = batch.reshape(-1).unsqueeze(1)
     with using(model, params):
-        return _rollout_loss(model, flat)
+        return _rollout_loss(model, flat, keys=(observation_key, action_key, history_key))

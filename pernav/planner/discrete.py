@@ -141,6 +141,7 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
         if beam_width is not None and int(beam_width) < 1:
             raise ValueError(f"beam_width must be >= 1 or None, got {beam_width}")
         spec = env.full_action_spec[action_key] if isinstance(env.action_spec, Composite) else env.action_spec
+        self.action_spec = spec  # the leaf (TorchRL's env.action_spec is a Composite for an action not at "action")
         self.one_hot, self.n_actions, self.action_dtype, self.action_shape = _action_layout(spec, env.batch_size)
         self.planning_horizon = int(planning_horizon)
         self.beam_width = None if beam_width is None else int(beam_width)

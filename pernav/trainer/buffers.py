@@ -34,6 +34,7 @@ from pathlib import Path
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
 from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 
 from pernav.model.actions import action_indices
@@ -67,6 +68,11 @@ KEYS = ("observation", "action", "history", ("next", "observation"))
 SENSING_KEYS = ("played", "prompt_start", "prompt_end", "frames")
 
 
+def _next(key: NestedKey) -> tuple[str, ...]:
+    """``("next", key)`` for a key or a nested key."""
+    return ("next", key) if isinstance(key, str) else ("next", *key)
+
+
 def _round_id(round_: int) -> int:
     """A round id as an ``int``; ``TypeError`` for anything but an integer (a str, a float, a bool)."""
     if isinstance(round_, bool):
@@ -90,14 +96,19 @@ class RoundBuffers:
         L: window length of :meth:`sample` (the L of the L-step loss).
         capacity: transitions per round (a trajectory that would exceed it is refused, ``ValueError``).
         seed: seed of the sampling generator (sampling is reproducible given the call sequence).
+        observation_key, action_key, history_key: where a trajectory holds the state (and ``("next", key)`` the next
+            one), the action and the :class:`~pernav.transforms.HistoryWindow` (its ``out_keys``); stored and
+            sampled under the same names (pass the same keys to the losses). Defaults: :data:`KEYS`.
 
     Attributes:
         lengths: each round's trajectory lengths, in the order added.
         short: each round's number of trajectories shorter than ``L``, which :meth:`sample` skips.
     """
 
-    def __init__(self, L: int = 5, capacity: int = 10_000, seed: int = 0) -> None:
+    def __init__(self, L: int = 5, capacity: int = 10_000, seed: int = 0, *, observation_key: NestedKey = "observation",
+                 action_key: NestedKey = "action", history_key: NestedKey = "history") -> None:
         self.L, self.capacity = int(L), int(capacity)
+        self.observation_key, self.action_key, self.history_key = observation_key, action_key, history_key
         self.buffers: dict[int, TensorDictReplayBuffer] = {}
         self.taus: dict[int, TensorDictBase] = {}
         self.calibration: dict[int, list[TensorDictBase]] = {}
@@ -110,6 +121,11 @@ class RoundBuffers:
         # strict sampler leaves it out. With every trajectory at least L long both draw the same windows
         return TensorDictReplayBuffer(storage=LazyTensorStorage(self.capacity),
                                       sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=True))
+
+    @property
+    def keys(self) -> tuple[NestedKey, ...]:
+        """The entries stored of each transition (:data:`KEYS` under this buffer's names)."""
+        return (self.observation_key, self.action_key, self.history_key, _next(self.observation_key))
 
     @property
     def short(self) -> dict[int, int]:
@@ -126,7 +142,7 @@ class RoundBuffers:
 
         With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``; with ``calibration=True``
         one of the round's user's calibration drives (:meth:`user_trajectories`). Actions may be categorical or
-        one-hot (stored as indices); entries other than :data:`KEYS` (and the road) are not stored. Everything is
+        one-hot (stored as indices); entries other than :attr:`keys` (and the road) are not stored. Everything is
         checked before anything is written: a refused trajectory (``TypeError``, ``KeyError`` or ``ValueError``:
         a wrong shape, missing keys, another layout than the stored data's, no room left) changes nothing.
         """
@@ -169,24 +185,28 @@ class RoundBuffers:
         if trajectory.ndim != 1 or trajectory.shape[0] == 0:
             raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
         present = trajectory.keys(True)
-        missing = [key for key in KEYS if key not in present]
+        keys = self.keys
+        missing = [key for key in keys if key not in present]
         if missing:
-            raise KeyError(f"a trajectory needs the entries {list(KEYS)}; missing {missing}")
-        data = trajectory.select(*KEYS).clone()
+            raise KeyError(f"a trajectory needs the entries {list(keys)}; missing {missing} (its entries: "
+                           f"{sorted(present, key=str)}; RoundBuffers(observation_key=, action_key=, history_key=) "
+                           "name them)")
+        data = trajectory.select(*keys).clone()
         road = road_of(trajectory)  # a drive's route_ahead, or stored data's road (a user's drives for fine-tuning)
         if road is not None:
             data["road"] = road.clone()
-        action = action_indices(data["action"], data.shape).long()  # one-hot (TorchRL's OneHot spec): indices
+        obs_key, next_key = self.observation_key, keys[-1]
+        action = action_indices(data[self.action_key], data.shape).long()  # one-hot (TorchRL's OneHot spec): indices
         if bool((action < 0).any()):
             raise ValueError(f"actions must be indices >= 0 (or one-hot), got the minimum {int(action.min())}")
-        data["action"] = action
-        observation, history = data["observation"], data["history"]
-        if observation.ndim != 2 or data["next", "observation"].shape != observation.shape:
-            raise ValueError(f"'observation' and ('next', 'observation') must both be [T, S], got "
-                             f"{tuple(observation.shape)} and {tuple(data['next', 'observation'].shape)}")
+        data[self.action_key] = action
+        observation, history = data[obs_key], data[self.history_key]
+        if observation.ndim != 2 or data[next_key].shape != observation.shape:
+            raise ValueError(f"{obs_key!r} and {next_key!r} must both be [T, S], got "
+                             f"{tuple(observation.shape)} and {tuple(data[next_key].shape)}")
         if history.ndim != 3 or history.shape[-1] <= observation.shape[-1]:
-            raise ValueError(f"'history' must be [T, K, S + A] (a HistoryWindow's, S={observation.shape[-1]}), got "
-                             f"{tuple(history.shape)}")
+            raise ValueError(f"{self.history_key!r} must be [T, K, S + A] (a HistoryWindow's, S={observation.shape[-1]}), "
+                             f"got {tuple(history.shape)}")
         self._check_layout(data)
         return data
 
@@ -270,6 +290,8 @@ class RoundBuffers:
             for k, drive in enumerate(drives):
                 drive.memmap(folder / f"calibration_{r}_{k}")
         meta = {"L": self.L, "capacity": self.capacity, "n_traj": self.n_traj, "rounds": self.rounds,
+                "keys": {"observation_key": self.observation_key, "action_key": self.action_key,
+                         "history_key": self.history_key},
                 "taus": sorted(self.taus), "calibration": {str(r): len(v) for r, v in self.calibration.items()},
                 "generator": self.generator.get_state().tolist()}
         (folder / "manifest.json").write_text(json.dumps(meta))
@@ -282,7 +304,8 @@ class RoundBuffers:
         if not manifest.is_file():
             raise FileNotFoundError(f"no replay-buffer manifest in {str(folder)!r}")
         meta = json.loads(manifest.read_text())
-        out = cls(L=meta["L"], capacity=meta["capacity"])
+        keys = {name: key if isinstance(key, str) else tuple(key) for name, key in meta.get("keys", {}).items()}
+        out = cls(L=meta["L"], capacity=meta["capacity"], **keys)  # keys: absent in older checkpoints (the defaults)
         out.n_traj = meta["n_traj"]
         out.generator.set_state(torch.tensor(meta["generator"], dtype=torch.uint8))
         for r in meta["rounds"]:

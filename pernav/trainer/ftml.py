@@ -157,7 +157,9 @@ class FTMLTrainer:
 
     Any :class:`~pernav.model.dynamics.DynamicsModel` (any state size and ``delta``); ``loss_fn`` is the loss
     of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default). The model's
-    ``K``, ``hidden``, ``road`` and ``context`` and the buffers' ``L`` must be the config's (``ValueError``)."""
+    ``K``, ``hidden``, ``road`` and ``context`` and the buffers' ``L`` must be the config's (``ValueError``).
+    Buffers with other entry names (``RoundBuffers(observation_key=...)``) need a ``loss_fn`` that reads them, e.g.
+    ``functools.partial(multistep_loss, observation_key=...)``."""
 
     def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0,
                  loss_fn: LossFn | None = None) -> None:
@@ -177,8 +179,9 @@ class FTMLTrainer:
     # ----- data ---------------------------------------------------------------------------------
     def fit_normalization(self) -> None:
         """Set the model's input/output statistics from all data so far (done once, at warm start)."""
-        data = self.buffers.all_data()
-        self.model.fit_normalization(data["history"], data["action"], data["next", "observation"], road_of(data))
+        data, buffers = self.buffers.all_data(), self.buffers
+        self.model.fit_normalization(data[buffers.history_key], data[buffers.action_key], data[buffers.keys[-1]],
+                                     road_of(data))
 
     def _split(self, rounds: list[int]) -> list[tuple[int, int]]:
         """(round, windows) pairs: up to ``rounds_per_update`` rounds drawn without replacement."""

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
@@ -11,8 +13,24 @@ from torchrl.envs.transforms import Transform
 __all__ = ["HistoryWindow"]
 
 
+def _one_key(keys: NestedKey | Sequence[NestedKey] | None, alias: NestedKey | None, names: tuple[str, str],
+             default: NestedKey) -> NestedKey:
+    """The one key of ``in_keys``/``out_keys`` (a key, or a list of one key) or of its older alias (``state_key``,
+    ``out_key``), ``default`` when neither is given; ``ValueError`` for several keys or two different ones."""
+    if keys is not None:
+        listed = [keys] if isinstance(keys, (str, tuple)) else list(keys)  # a tuple is one nested key, as in TorchRL
+        if len(listed) != 1:
+            raise ValueError(f"HistoryWindow records one observation into one window: {names[0]} must be one key, "
+                             f"got {listed} (concatenate several first, e.g. torchrl's CatTensors)")
+        if alias is not None and alias != listed[0]:
+            raise ValueError(f"HistoryWindow: {names[0]}={listed} and {names[1]}={alias!r} disagree; give one of them "
+                             f"({names[1]} is the older name of {names[0]})")
+        return listed[0]
+    return default if alias is None else alias
+
+
 class HistoryWindow(Transform):
-    """The last ``K`` (state, one-hot action) pairs under ``out_key``, shape ``[..., K, S + n_actions]``.
+    """The last ``K`` (state, one-hot action) pairs under ``out_keys``, shape ``[..., K, S + n_actions]``.
 
     Convention, at time ``t`` (the root of a step's tensordict)::
 
@@ -35,6 +53,10 @@ class HistoryWindow(Transform):
     spec's (float32 for integer observations). A scalar observation (shape ``()``, e.g. FrozenLake's cell index, a
     ``Categorical``) is one column of the window, its value; one-hot encode it first to give the model its category.
 
+    Keys, as in TorchRL's ``CatFrames``: ``in_keys`` (one observation, default ``["observation"]``) and ``out_keys``
+    (one window, default ``["history"]``); ``state_key=``/``out_key=`` are their older names and still work. An
+    observation the env does not have is a ``KeyError`` naming it and the env's observations.
+
     Example:
         >>> from torchrl.envs import GymEnv, TransformedEnv
         >>> env = TransformedEnv(GymEnv("CartPole-v1", categorical_action_encoding=True), HistoryWindow(K=4))
@@ -45,14 +67,19 @@ class HistoryWindow(Transform):
         True
         >>> int(td["next", "history"][1, -2, 4:].argmax()) == int(td["action"][1])
         True
+        >>> HistoryWindow(K=4, in_keys=["observation"], out_keys=["window"]).out_key  # TorchRL's key arguments
+        'window'
     """
 
-    def __init__(self, K: int = 5, state_key: NestedKey = "observation", action_key: NestedKey = "action",
-                 n_actions: int | None = None, out_key: NestedKey = "history") -> None:
+    def __init__(self, K: int = 5, state_key: NestedKey | None = None, action_key: NestedKey = "action",
+                 n_actions: int | None = None, out_key: NestedKey | None = None, *,
+                 in_keys: Sequence[NestedKey] | None = None, out_keys: Sequence[NestedKey] | None = None) -> None:
         if K < 1:
             raise ValueError(f"K must be >= 1, got {K}")
         if n_actions is not None and n_actions < 1:
             raise ValueError(f"n_actions must be >= 1, got {n_actions}")
+        state_key = _one_key(in_keys, state_key, ("in_keys", "state_key"), "observation")
+        out_key = _one_key(out_keys, out_key, ("out_keys", "out_key"), "history")
         super().__init__(in_keys=[state_key], out_keys=[out_key])
         self.K = int(K)
         self.state_key = state_key
@@ -140,9 +167,21 @@ class HistoryWindow(Transform):
         return torch.cat([kept, new_row], dim=-2)
 
     # ----- Transform API ------------------------------------------------------------------------
+    def _no_state(self, keys: Sequence[NestedKey]) -> KeyError:
+        return KeyError(f"HistoryWindow: the env has no observation {self.state_key!r} (in_keys / state_key); its "
+                        f"observations: {sorted(keys, key=str)}")
+
+    def _state(self, tensordict: TensorDictBase) -> torch.Tensor:
+        state = tensordict.get(self.state_key, None)
+        if state is None:
+            flags = ("done", "terminated", "truncated")
+            raise self._no_state([k for k in tensordict.keys(True, True) if (k if isinstance(k, str) else k[-1])
+                                  not in flags])
+        return self._vector(state, tensordict.batch_dims)
+
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         # Partial resets of batched envs: TransformedEnv keeps the old window of the envs not reset.
-        state = self._vector(tensordict_reset.get(self.state_key), tensordict_reset.batch_dims)
+        state = self._state(tensordict_reset)
         tensordict_reset.set(self.out_key, self.initial_window(state))
         return tensordict_reset
 
@@ -152,7 +191,7 @@ class HistoryWindow(Transform):
             raise KeyError(f"HistoryWindow: {self.out_key!r} is missing from the step input; "
                            "start from env.reset() of the TransformedEnv")
         action = tensordict.get(self.action_key)
-        state = self._vector(next_tensordict.get(self.state_key), next_tensordict.batch_dims)
+        state = self._state(next_tensordict)
         window = self.next_window(window, action, state, batch_dims=tensordict.batch_dims)
         next_tensordict.set(self.out_key, window)
         return next_tensordict
@@ -165,6 +204,8 @@ class HistoryWindow(Transform):
         return tensordict
 
     def _spec(self, spec: Composite) -> Unbounded:
+        if self.state_key not in spec.keys(True, True):
+            raise self._no_state(list(spec.keys(True, True)))
         state_spec = spec[self.state_key]
         features = state_spec.shape[len(spec.shape):]  # beyond the env's batch: () for a scalar observation
         if len(features) > 1:
@@ -205,12 +246,12 @@ class HistoryWindow(Transform):
         parent = self.parent
         observation_spec = parent.output_spec["full_observation_spec"] if parent is not None else None
         if observation_spec is None or self.state_key not in observation_spec.keys(True, True):
-            raise KeyError(f"HistoryWindow: the env has no observation {self.state_key!r}")
+            raise self._no_state([] if observation_spec is None else list(observation_spec.keys(True, True)))
         state_spec[self.out_key] = self._spec(observation_spec)
         input_spec["full_state_spec"] = state_spec
         return input_spec
 
     def __repr__(self) -> str:
-        return (f"{type(self).__name__}(K={self.K}, state_key={self.state_key!r}, "
+        return (f"{type(self).__name__}(K={self.K}, in_keys={[self.state_key]!r}, "
                 f"action_key={self.action_key!r}, n_actions={None if self._from_spec else self._n_actions}, "
-                f"out_key={self.out_key!r})")
+                f"out_keys={[self.out_key]!r})")
