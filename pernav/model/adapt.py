@@ -77,6 +77,8 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     ``params`` defaults to the model's own (meta) parameters; stacked ensemble parameters (batch ``[E]``)
     adapt every member at once. Buffers (normalization statistics) are carried over unchanged. A model with a
     context (``DynamicsModel(context=n)``) adapts only its context vector (CAVIA); the weights stay the meta ones.
+    Any ``nn.Module`` adapts with a ``loss_fn`` that reads it; one without ``n_context`` has no context (every
+    parameter that requires grad is adapted).
 
     ``max_norm``: the step's gradient is scaled down to at most this global norm (per member), differentiably.
     A model whose L-step rollouts diverge on ``tau`` has an adaptation gradient of thousands (typically 5-20);
@@ -97,7 +99,7 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
                          f"(first_order={first_order})")
     params = meta_parameters(model) if params is None else params
     keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad
-            and (not model.n_context or k == "context")]
+            and (not getattr(model, "n_context", 0) or k == "context")]  # any nn.Module: no n_context, no context
     if not keys:
         raise ValueError("no parameter requires grad: nothing to adapt")
     # one-hot actions (TorchRL's OneHot spec) as indices, once: a custom loss_fn sees the same windows either way

@@ -5,6 +5,8 @@ differs from the second-order one.
 
 from __future__ import annotations
 
+from contextlib import nullcontext
+
 import torch
 from navigation_helpers import S
 from navigation_helpers import seeded_model as _model
@@ -70,3 +72,44 @@ def _windows(tau, L):
     """The L-slices that tile tau (adapt's default, stride L)."""
     index = torch.arange(0, tau.shape[0] - L + 1, L)[:, None] + torch.arange(L)[None]
     return tau[index]
+
+
+class _Linear(torch.nn.Module):
+    """A custom model (no ``n_context``, no ``config()``): the next state from the newest window row."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.net = torch.nn.Linear(S + 7, S)
+
+    def forward(self, history: torch.Tensor) -> torch.Tensor:
+        return self.net(history[..., -1, :])
+
+
+def _linear_loss(model: torch.nn.Module, batch, params=None) -> torch.Tensor:
+    with params.to_module(model) if params is not None else nullcontext():
+        return ((model(batch["history"]) - batch["next", "observation"]) ** 2).mean()
+
+
+def test_a_custom_module_with_a_loss_fn_adapts_and_meta_trains() -> None:
+    """A plain ``nn.Module`` without ``n_context`` has no context: ``adapt`` steps every parameter, and the FTML meta
+    update runs (it raised ``AttributeError: ... 'n_context'``)."""
+    from pernav.trainer import FTMLTrainer, RoundBuffers, TrainConfig
+
+    g = torch.Generator().manual_seed(0)
+    buffers = RoundBuffers(L=3, seed=0)
+    for r in range(2):
+        T = 12
+        buffers.add(r, TensorDict({"observation": torch.randn(T, S, generator=g),
+                                   "action": torch.randint(7, (T,), generator=g),
+                                   "history": torch.randn(T, 2, S + 7, generator=g),
+                                   ("next", "observation"): torch.randn(T, S, generator=g)}, [T]), tau=True)
+    torch.manual_seed(0)
+    model = _Linear()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    adapted = adapt(model, buffers.tau(0), alpha=0.1, L=3, loss_fn=_linear_loss, first_order=True)
+    assert set(adapted.flatten_keys().keys()) == {"net.weight", "net.bias"}
+    assert not torch.equal(adapted["net", "weight"], before["net.weight"])
+    trainer = FTMLTrainer(model, buffers, TrainConfig(batch=4, L=3), seed=0, loss_fn=_linear_loss)
+    losses = trainer.train(2, meta=True)
+    assert len(losses) == 2 and all(torch.isfinite(torch.tensor(losses)))
+    assert not torch.equal(model.net.weight, before["net.weight"])
