@@ -206,6 +206,7 @@ def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict
         if len(slow["explore"]):
             row["slow_gap_closed"] = gap_closed(slow["explore"], slow[learner], slow["oracle"])
             row["slow"] = {m: float(v.mean()) for m, v in slow.items()}
+            row["slow_saved"] = {m: paired_difference(slow["explore"], slow[m]) for m in (learner, "oracle")}
         if len(quick["explore"]):
             row["quick_cost_ratio"] = paired_ratio(quick[learner], quick["explore"])
         if len(lead["explore"]):
@@ -294,20 +295,31 @@ def plot_sweep_leads(results: list[dict[str, Any]], path: str,
 
 
 def plot_personalization(judged: dict[str, Any], path: str) -> None:
-    """The personalization curve from :func:`judge_repeat`: the slow drivers' gap closed and the quick drivers'
-    cost over explore's after each drive of the same driver (95 % CIs)."""
-    plt, fig, (left, right) = _axes(2, 5.0)
-    drives = sorted(judged["drives"], key=int)
-    for ax, key, scale, label in ((left, "slow_gap_closed", 100, "slow drivers: gap closed (%)"),
-                                  (right, "quick_cost_ratio", 1, "quick drivers: cost / explore's")):
-        pts = [(int(k), judged["drives"][k][key]) for k in drives if key in judged["drives"][k]]
-        x = [p[0] for p in pts]
-        m = [p[1]["mean"] * scale for p in pts]
-        err = [[(p[1]["mean"] - p[1]["low"]) * scale for p in pts], [(p[1]["high"] - p[1]["mean"]) * scale for p in pts]]
-        ax.errorbar(x, m, yerr=err, marker="o", capsize=3)
-        ax.axhline(100 if scale == 100 else 1.0, color="0.6", lw=0.8, ls="--")
+    """The personalization curve from :func:`judge_repeat`, after each drive of the same driver (95 % CIs): what the
+    learner and the oracle save the slow drivers per route against explore, the quick drivers' cost over explore's,
+    and the width of the belief's 90 % interval."""
+    plt, fig, (left, middle, right) = _axes(3, 4.6)
+    rows = {int(k): v for k, v in judged["drives"].items()}
+    x = sorted(rows)
+
+    def bars(ax: Any, points: list[dict[str, float]], label: str, offset: float = 0.0) -> None:
+        m = [p["mean"] for p in points]
+        err = [[p["mean"] - p["low"] for p in points], [p["high"] - p["mean"] for p in points]]
+        ax.errorbar([k + offset for k in x], m, yerr=err, marker="o", capsize=3, label=label)
+
+    for name, offset in ((judged["learner"], -0.06), ("oracle", 0.06)):
+        bars(left, [rows[k]["slow_saved"][name] for k in x], name, offset)
+    left.axhline(0, color="0.6", lw=0.8, ls="--")
+    left.set_ylabel("slow drivers: cost saved vs explore, per route")
+    left.legend()
+    bars(middle, [rows[k]["quick_cost_ratio"] for k in x], judged["learner"])
+    middle.axhline(1.0, color="0.6", lw=0.8, ls="--")
+    middle.set_ylabel("quick drivers: cost / explore's")
+    right.plot(x, [rows[k]["interval_width"] for k in x], marker="o")
+    right.set_ylabel("the belief's 90 % interval of the reaction time (s)")
+    right.set_ylim(bottom=0)
+    for ax in (left, middle, right):
         ax.set_xlabel("drives of the same driver")
-        ax.set_ylabel(label)
         ax.set_xticks(x)
     fig.suptitle(f"{judged['learner']}: the personalization curve (seeds {', '.join(map(str, judged['seeds']))})")
     fig.tight_layout()

@@ -91,7 +91,7 @@ def test_judge_sweep_reads_leads_that_follow_the_driver_and_the_end_points():
     assert j["pooled"]["slow_end_gap_closed"]["mean"] == pytest.approx(0.75)
 
 
-def test_judge_repeat_reads_the_curve_per_drive():
+def test_judge_repeat_reads_the_curve_per_drive(tmp_path):
     labels = [e.label for e in follow.repeat_schedule() if e.phase == "online"]
 
     def cost(seed, town, label, route, method):
@@ -114,6 +114,9 @@ def test_judge_repeat_reads_the_curve_per_drive():
         assert row["slow_gap_closed"]["mean"] == pytest.approx(0.2 * k)
         assert row["quick_cost_ratio"]["mean"] == pytest.approx(1.01)
         assert row["interval_width"] == pytest.approx(1 / k, abs=1e-4) and row["abs_log_error"] == 0
+        assert row["slow_saved"]["belief"]["mean"] == pytest.approx(20 * k) and row["slow_saved"]["oracle"]["mean"] == 100
+    follow.plot_personalization(j, str(tmp_path / "curve.png"))
+    assert (tmp_path / "curve.png").stat().st_size > 10_000
 
 
 def test_judge_headroom_fresh_measures_the_learner_against_timing_in_shares_of_the_gap():
