@@ -8,7 +8,7 @@ import numpy as np
 from highway_env.road.lane import CircularLane
 from highway_env.vehicle.kinematics import Vehicle
 
-from pernav.world.constants import audio_duration
+from pernav.world.constants import OPPOSITE, PREPARES, SIDED, TURNS, Instruction, audio_duration
 from pernav.world.controls import ExternalControls, PersonAtTheWheel
 from pernav.world.drivers import Driver
 from pernav.world.events import Heard
@@ -63,14 +63,14 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
     # ----- hearing ----------------------------------------------------------------------------
     def hear(self, instruction: int, playback: str, now: float) -> None:
         """The instruction was played: understood (or misheard) and acted on after audio + reaction."""
-        if instruction == 0:
+        if instruction == Instruction.NONE:
             return
         d, ev = self.driver, self.world.events
         heard, swapped, complied = self.world.driver_rng.random(3)  # four draws per play, always
         reaction = d.reaction_draw(float(self.world.driver_rng.standard_normal()))  # this prompt's reaction
         if heard > d.understanding(playback):
-            if instruction in (1, 2, 3, 4) and swapped < 0.5:  # misheard left <-> right
-                instruction = {1: 2, 2: 1, 3: 4, 4: 3}[instruction]
+            if instruction in SIDED and swapped < 0.5:  # misheard left <-> right
+                instruction = OPPOSITE[instruction]
                 ev.misunderstood += 1
             else:
                 ev.misunderstood += 1
@@ -79,12 +79,12 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             ev.ignored += 1
             return
         active = now + audio_duration(instruction, playback) + reaction
-        if instruction in (1, 2):  # a new turn instruction replaces older ones
-            self.heard = [h for h in self.heard if h.instruction not in (1, 2, 6)]
-        elif instruction in (3, 4):
-            self.heard = [h for h in self.heard if h.instruction not in (3, 4)]
-        elif instruction == 6:
-            self.heard = [h for h in self.heard if h.instruction not in (1, 2)]
+        if instruction in TURNS:  # a new turn instruction replaces older ones
+            self.heard = [h for h in self.heard if h.instruction not in (*TURNS, Instruction.KEEP_LEFT)]
+        elif instruction in PREPARES:
+            self.heard = [h for h in self.heard if h.instruction not in PREPARES]
+        elif instruction == Instruction.KEEP_LEFT:
+            self.heard = [h for h in self.heard if h.instruction not in TURNS]
         self.heard.append(Heard(instruction, now, active, active + d.memory))
 
     def active(self, now: float, kinds: tuple[int, ...]) -> Heard | None:
@@ -166,20 +166,20 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         # the same seed faces the same draws whether or not one of them made the driver swerve
         follow_prep, pick = (0.0, 0.0) if late else self.world.guess_rng.random(2)
         options = self._options(node)
-        turn = self.active(now, (1, 2))
-        prep = self.active(now, (3, 4))
+        turn = self.active(now, TURNS)
+        prep = self.active(now, PREPARES)
         if ":r" in node:
             choice = "exit" if turn is not None and "exit" in options else "stay"
             if choice == "exit":
-                self.consume((1, 2), now)
+                self.consume(TURNS, now)
         else:
             choice = None
             if turn is not None and turn.direction in options:
                 choice = turn.direction
-                self.consume((1, 2, 3, 4), now)
+                self.consume(SIDED, now)
             elif prep is not None and prep.direction in options and follow_prep < 0.5:
                 choice = prep.direction
-                self.consume((3, 4), now)
+                self.consume(PREPARES, now)
             if choice is None:
                 choice = "straight" if "straight" in options else sorted(options)[int(pick * len(options))]
         self.approach_options[node] = options
@@ -228,7 +228,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             if dist <= max(d.decision_time * v, 4.0):
                 self.commit(node, now)
                 self.extend_forced()
-        turn = self.active(now, (1, 2))
+        turn = self.active(now, TURNS)
         # late instruction after the commit: swerve if still before the stop line or just past it
         # (docs/simulator.md: harsh braking, sharp steering, running wide), otherwise the turn is missed
         approach = self.path[0][1]
@@ -257,7 +257,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         world, town = self.world, self.world.town
         in_box = town.lane_junction.get(self.path[0])
         if in_box is not None and in_box != self.box and town.junctions[in_box].kind == "cross":
-            dropped = [h for h in self.heard if h.instruction in (1, 2, 3, 4) and h.heard_at < now]
+            dropped = [h for h in self.heard if h.instruction in SIDED and h.heard_at < now]
             world.events.discarded += len(dropped)
             self.heard = [h for h in self.heard if h not in dropped]
         self.box = in_box
@@ -277,22 +277,22 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         if nd is not None and ":i" in nd[0]:
             node, dist = nd
             j = town.junction_of_node(node)
-            expect = self.active(now, (1, 2)) or self.active(now, (3, 4))
+            expect = self.active(now, TURNS) or self.active(now, PREPARES)
             if j is not None and dist < d.sight_distance:
                 if j.kind == "roundabout":
                     needs.append(braking_for(v_seen, self.ring_speed(), dist))
                 elif expect is not None:
-                    target = d.turn_speed if expect.instruction in (1, 2) else 0.5 * (d.turn_speed + cruise)
+                    target = d.turn_speed if expect.instruction in TURNS else 0.5 * (d.turn_speed + cruise)
                     needs.append(braking_for(v_seen, target, dist))
-        if self.active(now, (5,)) is not None and nd is not None:
+        if self.active(now, (Instruction.ENTER_ROUNDABOUT,)) is not None and nd is not None:
             j = town.junction_of_node(nd[0])
             if j is not None and j.kind == "roundabout":
                 needs.append(braking_for(v_seen, self.ring_speed(), nd[1]))
-        prep = self.active(now, (3, 4))
+        prep = self.active(now, PREPARES)
         if prep is not None and town.lane_junction.get(self.path[0]) is None:
             acc = min(acc, idm_acceleration(v, 0.75 * cruise, np.inf, 0, 1, d.comfort_accel, d.comfort_decel))
             self.lane_for(prep.direction)
-        elif (heard_turn := self.active(now, (1, 2))) is not None:  # a turn without its "prepare": its lane
+        elif (heard_turn := self.active(now, TURNS)) is not None:  # a turn without its "prepare": its lane
             self.lane_for(heard_turn.direction)
         need = max(needs, default=0.0)
         harsh_limit = d.vehicle.max_decel

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pernav.world.constants import SIDE
+
 
 @dataclass
 class Heard:
@@ -16,7 +18,7 @@ class Heard:
 
     @property
     def direction(self) -> str | None:
-        return {1: "left", 2: "right", 3: "left", 4: "right"}.get(self.instruction)
+        return SIDE.get(self.instruction)
 
 
 @dataclass
