@@ -31,7 +31,7 @@ import numpy as np
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
-from pernav.world.constants import N_INSTRUCTIONS, TURN_INSTRUCTIONS
+from pernav.world.constants import N_INSTRUCTIONS, TURN_INSTRUCTIONS, Instruction
 from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
 
 __all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",
@@ -61,7 +61,7 @@ def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: 
     The future is imagined by advancing the car along the route at its current speed and recording
     what the policy would play, so repeated prompts are handled as in the env.
     """
-    past = ([0] * shift + list(past))[-shift:] if shift else []
+    past = ([Instruction.NONE] * shift + list(past))[-shift:] if shift else []
     plan = list(past)
     log = list(view.log)
     last = view.last_action
@@ -69,7 +69,7 @@ def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: 
     for h in range(horizon + shift):
         v = replace(view, progress=view.progress + step * h, last_action=last, log=log)
         action = policy(v)
-        if action != 0 and action != last:
+        if action != Instruction.NONE and action != last:
             log = [*log, (action, v.progress)]
         last = action
         plan.append(action)
@@ -79,7 +79,7 @@ def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: 
 def allowed_instructions(route: Route, progress: float, in_roundabout: bool) -> np.ndarray:
     """``[7]`` bool: the instructions that make sense at route distance ``progress``."""
     allowed = np.zeros(N_INSTRUCTIONS, dtype=bool)
-    allowed[0] = True
+    allowed[Instruction.NONE] = True
     ahead = route.upcoming(progress, horizon=max(TURN_REACH, RING_REACH))
     if ahead:
         m = ahead[0]

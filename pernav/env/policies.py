@@ -23,15 +23,16 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from pernav.world.constants import WAYPOINT_SPACING, audio_duration
+from pernav.world.constants import SIDED, WAYPOINT_SPACING, Instruction, audio_duration
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
 from pernav.world.routing import Manoeuvre, Route
 from pernav.world.simulation import SPEED_RING
 
-TURN = {"left": 1, "right": 2}
-PREPARE = {"left": 3, "right": 4}
-ENTER, KEEP_LEFT, EXIT = 5, 6, 2
-DROPPED = (1, 2, 3, 4)  # what a driver drops on entering a junction box when heard before it
+TURN = {"left": Instruction.TURN_LEFT, "right": Instruction.TURN_RIGHT}
+PREPARE = {"left": Instruction.PREPARE_LEFT, "right": Instruction.PREPARE_RIGHT}
+ENTER, KEEP_LEFT = Instruction.ENTER_ROUNDABOUT, Instruction.KEEP_LEFT
+EXIT = Instruction.TURN_RIGHT  # a roundabout's exit is said "turn right"
+DROPPED = SIDED  # what a driver drops on entering a junction box when heard before it
 GUARD_RING_SPEED = SPEED_RING  # the speed the exit guard assumes on a ring (the car slows to it)
 
 
@@ -89,8 +90,9 @@ class PromptPolicy:
         "turn", but late enough that the driver still remembers it when committing (the prepare is
         its fallback when the "turn" is lost)."""
         d = self.fastest or self.driver
-        remembered = v * (audio_duration(3) + d.reaction_time + d.memory + d.decision_time - self.margin)
-        return min(lead + v * (audio_duration(3) + self.prepare_gap), remembered)
+        remembered = v * (audio_duration(Instruction.PREPARE_LEFT) + d.reaction_time + d.memory + d.decision_time
+                          - self.margin)
+        return min(lead + v * (audio_duration(Instruction.PREPARE_LEFT) + self.prepare_gap), remembered)
 
     def _brake_distance(self, v: float, v_target: float) -> float:
         b = 0.6 * self.driver.comfort_decel
@@ -100,7 +102,7 @@ class PromptPolicy:
         """Metres before the stop line at which to say "turn": heard, understood, reacted to and
         still in time to brake comfortably before the driver commits."""
         d = self.driver
-        react = v * (audio_duration(1) + d.reaction_time + self.margin)
+        react = v * (audio_duration(Instruction.TURN_LEFT) + d.reaction_time + self.margin)
         return react + max(v * d.decision_time, self._brake_distance(v, d.turn_speed))
 
     def exit_lead(self, v: float) -> tuple[float, float]:
@@ -134,11 +136,11 @@ class PromptPolicy:
         d = self.driver
         ahead = view.route.upcoming(view.progress)
         if not ahead:
-            return 0
+            return Instruction.NONE
         m = target = ahead[0]
         v = max(view.speed, 5.0)
         dist = m.s - view.progress
-        desired = 0
+        desired = Instruction.NONE
         if m.kind in TURN:
             lead = self.turn_lead(v)
             if dist - v * self.step <= lead:  # at the next step it would be too late
@@ -152,20 +154,20 @@ class PromptPolicy:
                 desired, target = EXIT, exit_
             elif m.kind == "enter":
                 ring = min(SPEED_RING, d.turn_speed + 1.0)
-                if dist <= v * (audio_duration(5) + d.reaction_time + 1.5) + self._brake_distance(v, ring):
+                if dist <= v * (audio_duration(ENTER) + d.reaction_time + 1.5) + self._brake_distance(v, ring):
                     desired = ENTER
             elif dist <= self.exit_lead(max(view.speed, 3.0))[1]:
                 desired = KEEP_LEFT
         elif m.kind == "exit" and self._exit_due(view, m, view.previous_manoeuvre()):
             desired = EXIT
-        if desired == 0:
-            return 0
+        if desired == Instruction.NONE:
+            return Instruction.NONE
         if desired in DROPPED and self.fastest is not None and self._box_before(view, target):  # else dropped
-            return 0
+            return Instruction.NONE
         if desired in view.played_for(target):  # said already: hold it (no replay) or stay silent
-            return desired if view.last_action == desired else 0
+            return desired if view.last_action == desired else Instruction.NONE
         if view.last_action == desired:  # same words for a new manoeuvre: pause once so it plays
-            return 0
+            return Instruction.NONE
         return desired
 
 

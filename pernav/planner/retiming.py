@@ -55,6 +55,7 @@ from torchrl.modules.planners import MPCPlannerBase
 
 from pernav.env.layout import ROUTE_SPACING
 from pernav.model.dynamics import GX, GY, STATE_DIM
+from pernav.world.constants import Instruction
 from pernav.world.cost import tracking_cost
 
 __all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
@@ -91,15 +92,15 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     H = horizon
     pad = future[-1:].expand(H + advance)  # past the known future the plan stays as it ends
     future = torch.cat([future, pad])
-    held = int(future[0]) if int(future[0]) == last and last != 0 else 0
+    held = int(future[0]) if int(future[0]) == last and last != Instruction.NONE else 0
     rows = [future[:H]]
     # advancing the plan by k must not drop an instruction it would say within those k steps (one not held
     # now): "turn left" due now, advanced past, would leave the driver with the *next* manoeuvre's prompt
-    skipped = [{int(a) for a in future[:k].tolist()} - {0, last, int(future[k])} for k in range(advance + 1)]
+    skipped = [{int(a) for a in future[:k].tolist()} - {Instruction.NONE, last, int(future[k])} for k in range(advance + 1)]
     rows += [future[k:k + H] for k in range(1, advance + 1) if not skipped[k]]
     rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)]
     if bool(future[: advance + 1].any()):  # a prompt is due within reach: the fine choices now as well
-        rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist() if a != 0]
+        rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist() if a != Instruction.NONE]
     seqs, inverse = torch.unique(torch.stack(rows), dim=0, return_inverse=True)
     return seqs, int(inverse[0])
 

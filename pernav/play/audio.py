@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.world.constants import ACTION_NAMES as INSTRUCTIONS  # light: loads neither highway-env nor pygame
-from pernav.world.constants import PLAYBACK
+from pernav.world.constants import PLAYBACK, Instruction
 
 SPEECH_DIR = Path(__file__).resolve().parent / "speech"
 RATE = 16_000  # Hz of the speech files: the mixer opens at it, so SDL need not resample them
@@ -164,7 +164,7 @@ class Speaker:
         never raises (the prompt is then text only).
         """
         instruction, playback = _instruction(instruction, allow_silence=True), _playback(playback)
-        if instruction == 0 or self._channel is None:
+        if instruction == Instruction.NONE or self._channel is None:
             return False
         path = speech_file(instruction, playback)
         try:
