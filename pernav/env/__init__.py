@@ -7,8 +7,8 @@ from pernav._lazy import lazy_exports
 
 _EXPORTS = {
     "DEFAULT_CONFIG": "pernav.env.navigation",
-    "STATE_DIM": "pernav.env.navigation",
-    "STATE_KEYS": "pernav.env.navigation",
+    "STATE_DIM": "pernav.env.layout",
+    "STATE_KEYS": "pernav.env.layout",
     "NavigationEnv": "pernav.env.navigation",
     "load_user": "pernav.env.navigation",
     "NavView": "pernav.env.policies",

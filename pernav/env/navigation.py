@@ -25,6 +25,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from pernav.env.layout import STATE_DIM
+from pernav.env.layout import STATE_KEYS as STATE_KEYS  # its home is pernav.env.layout; old imports keep working
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
 from pernav.env.policies import (
     BeliefSource,
@@ -34,7 +36,7 @@ from pernav.env.policies import (
     explore_policy,
     oracle_policy,
 )
-from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, audio_duration
+from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, Instruction, audio_duration
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -51,14 +53,11 @@ from pernav.world.routing import Route, RouteError, plan_route
 from pernav.world.simulation import World
 from pernav.world.towns import TOWN_NAMES, TownError, get_town
 
-STATE_DIM = 14
 #: what the navigation senses of the car at each of the world's frames between two decisions (the ``"frames"`` entry,
 #: ``[frequency, len(FRAME_KEYS)]``): speed (m/s), acceleration (m/s^2), brake pedal (0-1), steering (-1..1 of the
 #: vehicle's lock), signed offset from the centre of the lane the car is in (m; it jumps by a lane's width
 #: when the car changes lane). A car's own sensors give these; nothing of the driver's profile or intent.
 FRAME_KEYS = ("speed", "acceleration", "brake", "steering", "lane_offset")
-STATE_KEYS = ("x", "y", "z", "vx", "vy", "vz", "heading", "junction", "roundabout", "goal_x", "goal_y",
-              "steering", "reverse", "brake")
 REPLAY_AFTER = 15  # an unchanged instruction is replayed after this many steps (paper §5.1)
 DEFAULT_CONFIG: dict[str, Any] = {
     "frequency": 10,  # simulation frames per policy step (one step = one second)
@@ -259,7 +258,7 @@ class NavigationEnv(gym.Env):
         ``(step cost, played, arrived, truncated)``."""
         instruction, playback = self.decode(action)
         self._explore_past = [*self._explore_past, self._explore(self.nav_view())][-max(self.config["plan_shift"], 1):]
-        played = instruction != 0 and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
+        played = instruction != Instruction.NONE and (instruction != self.last_instruction or self.repeat >= REPLAY_AFTER)
         self.prompt_start = self.prompt_end = -1.0
         if played:
             self.prompt_start = float(self.world.time)

@@ -8,13 +8,12 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDictBase
 
-from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
+from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING, STATE_DIM, STATE_KEYS
 
 __all__ = ["GX", "GY", "HEADING", "ROAD_MAX", "STATE_DIM", "VX", "VY", "X", "Y", "EgocentricDifferences", "apply_delta",
            "ego_delta", "road_of", "road_points", "wrap_angle"]
 
-STATE_DIM = 14
-X, Y, VX, VY, HEADING, GX, GY = 0, 1, 3, 4, 6, 9, 10
+X, Y, VX, VY, HEADING, GX, GY = (STATE_KEYS.index(k) for k in ("x", "y", "vx", "vy", "heading", "goal_x", "goal_y"))
 PAIRS = ((X, Y), (VX, VY), (GX, GY))  # planar vectors rotated into the car's frame
 ROAD_STRIDE = 2  # route points (ROUTE_SPACING = 3 m apart) from one road point to the next: 6 m
 ROAD_MAX = 16  # road points stored with the data (90 m ahead); a model reads the first ``road`` of them

@@ -36,7 +36,9 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
+from pernav.env.layout import STATE_KEYS
 from pernav.env.policies import belief_policy, explore_policy
+from pernav.world.constants import TURNS
 
 __all__ = ["FEATURES", "N_FEATURES", "TARGETS", "TimingModel", "timing_features"]
 
@@ -48,7 +50,8 @@ FEATURES = ("missed per turn prompt", "re-routes per turn prompt", "kerb strikes
 N_FEATURES = len(FEATURES)
 #: the effective driver fields the model predicts (the rules' timing inputs)
 TARGETS = ("reaction_time", "decision_time")
-_SPEED, _BRAKE, _STEER = (3, 4), 13, 11  # observation entries (pernav.env.navigation)
+_SPEED = (STATE_KEYS.index("vx"), STATE_KEYS.index("vy"))  # observation entries (pernav.env.layout)
+_BRAKE, _STEER = STATE_KEYS.index("brake"), STATE_KEYS.index("steering")
 
 
 def timing_features(trajectory: TensorDictBase) -> torch.Tensor:
@@ -68,7 +71,7 @@ def timing_features(trajectory: TensorDictBase) -> torch.Tensor:
     to_junction = trajectory["distance_to_junction"].float().reshape(-1)
     last = trajectory[-1]["next"]
     T = len(a)
-    turns = [t for t in range(T) if a[t] in (1, 2) and (t == 0 or a[t - 1] != a[t])]
+    turns = [t for t in range(T) if a[t] in TURNS and (t == 0 or a[t - 1] != a[t])]
     n = max(len(turns), 1)
     peak_brake, peak_steer, onset = [], [], []
     for t in turns:

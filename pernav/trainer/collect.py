@@ -19,14 +19,17 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torchrl.envs import EnvBase, TransformedEnv
 
+from pernav.env.layout import STATE_KEYS
 from pernav.env.torchrl_env import make_torchrl_env
 from pernav.model.dynamics import road_of
 from pernav.transforms.history import HistoryWindow
+from pernav.world.constants import Instruction
 
 __all__ = ["derive_seed", "drive", "episode_metrics", "history_env", "in_action_space", "to_speed_actions",
            "turn_lead"]
 
 MAX_STEPS = 2000  # the env truncates far earlier (time limit); this only bounds a runaway loop
+_VELOCITY = slice(STATE_KEYS.index("vx"), STATE_KEYS.index("vy") + 1)  # the planar velocity in an observation
 
 
 def derive_seed(*parts: Any) -> int:
@@ -77,10 +80,11 @@ def turn_lead(trajectory: TensorDictBase) -> float | None:
         return None
     wide = "history" in keys and trajectory["history"].shape[-1] - trajectory["observation"].shape[-1] == 21
     instruction = trajectory["action"].reshape(-1) // (3 if wide else 1)  # a 21-action drive: instruction * 3 + speed
-    said = trajectory["next", "played"].reshape(-1) & ((instruction == 1) | (instruction == 2))
+    turn = (instruction == Instruction.TURN_LEFT) | (instruction == Instruction.TURN_RIGHT)
+    said = trajectory["next", "played"].reshape(-1) & turn
     if not bool(said.any()):
         return None
-    speed = trajectory["observation"][:, 3:5].norm(dim=-1).clamp(min=1.0)
+    speed = trajectory["observation"][:, _VELOCITY].norm(dim=-1).clamp(min=1.0)
     return round(float((trajectory["distance_to_junction"].reshape(-1) / speed)[said].mean()), 3)
 
 
