@@ -44,13 +44,14 @@ import torch
 from torch import nn
 
 from pernav.env.policies import explore_policy
+from pernav.world.constants import PREPARES, SIDED
 from pernav.world.drivers import REACTION_CV
 
 __all__ = ["ANSWERED", "ANSWER_SPAN", "N_FRAME_FEATURES", "Answer", "AnswerDetector", "BeliefTracker",
            "ReactionBelief", "answers_of", "frame_features", "frame_series"]
 
 #: the prompts whose answer the belief reads: "turn" and "prepare" (left, right)
-ANSWERED = (1, 2, 3, 4)
+ANSWERED = SIDED
 ANSWER_SPAN = 9.0  # s after a prompt's audio end in which its answer is looked for (reaction draws reach ~3x R)
 EARLIEST = 0.25  # s after the audio end before which no answer is looked for
 WINDOW = 3  # frames each side of a candidate frame that its features read
@@ -101,7 +102,7 @@ class Answer:
 
     @property
     def prepare(self) -> bool:
-        return self.instruction in (3, 4)
+        return self.instruction in PREPARES
 
 
 def answers_of(instructions: list[int], ends: list[float], series: torch.Tensor, times: torch.Tensor,
@@ -120,10 +121,10 @@ def answers_of(instructions: list[int], ends: list[float], series: torch.Tensor,
     for k, (instruction, end) in enumerate(zip(instructions, ends, strict=True)):
         if instruction not in ANSWERED:
             continue
-        kind = instruction in (3, 4)
+        kind = instruction in PREPARES
         hi = end + ANSWER_SPAN
         same = [e for i, e in zip(instructions[k + 1:], ends[k + 1:], strict=True)
-                if i in ANSWERED and (i in (3, 4)) == kind]
+                if i in ANSWERED and (i in PREPARES) == kind]
         if same:
             hi = min(hi, same[0] + EARLIEST)
         other = ends[k + 1] + EARLIEST if k + 1 < len(ends) else math.inf
