@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from pernav.world.scalars import clamp, wrap_angle
 from pernav.world.towns import LANE_WIDTH, LaneIndex
-from pernav.world.vehicles import _clamp, _wrap
 
 if TYPE_CHECKING:
     from pernav.world.driver_car import DriverCar
@@ -62,7 +62,7 @@ class PersonAtTheWheel:
     def steer_after(self, inputs: ControlInput) -> float:
         """The steering angle (rad) after one frame of ``inputs`` (no state changes)."""
         max_steer, dt = self.driver.vehicle.max_steering, self.world.dt
-        target = _clamp(inputs.steer, -1.0, 1.0) * max_steer
+        target = clamp(inputs.steer, -1.0, 1.0) * max_steer
         if not inputs.digital:
             steer = self.steer + (target - self.steer) * min(1.0, dt / self.WHEEL_LAG)
         elif target != 0.0:
@@ -70,12 +70,12 @@ class PersonAtTheWheel:
             steer = self.steer + float(np.sign(err)) * min(abs(err), self.KEY_STEER_RATE * dt)
         else:
             steer = self.steer - float(np.sign(self.steer)) * min(abs(self.steer), self.KEY_CENTRE_RATE * dt)
-        return _clamp(steer, -max_steer, max_steer)
+        return clamp(steer, -max_steer, max_steer)
 
     def accel_of(self, inputs: ControlInput) -> float:
         """The acceleration (m/s^2) that ``inputs`` ask for."""
         veh = self.driver.vehicle
-        throttle, brake = _clamp(inputs.throttle, 0.0, 1.0), _clamp(inputs.brake, 0.0, 1.0)
+        throttle, brake = clamp(inputs.throttle, 0.0, 1.0), clamp(inputs.brake, 0.0, 1.0)
         if throttle == 0.0 and brake == 0.0:
             return -self.ROLLING if self.speed > 0.0 else 0.0
         full_brake = veh.max_decel * (self.KEY_BRAKE if inputs.digital else 1.0)
@@ -85,7 +85,7 @@ class PersonAtTheWheel:
         """Set the steering and acceleration of this frame from a person's controls (the same physics follow)."""
         self.steer = self.steer_after(inputs)
         self.accel = self.accel_of(inputs)
-        self.brake_input = _clamp(inputs.brake, 0.0, 1.0)
+        self.brake_input = clamp(inputs.brake, 0.0, 1.0)
         self.action = {"steering": self.steer, "acceleration": self.accel}
 
     def simulated_controls(self) -> tuple[float, float]:
@@ -109,7 +109,7 @@ class PersonAtTheWheel:
             lane = town.lane(index)
             s, lat = lane.local_coordinates(self.position)
             ds = max(0.0, -s, s - lane.length)
-            dh = abs(_wrap(lane.heading_at(_clamp(s, 0.0, lane.length)) - self.heading))
+            dh = abs(wrap_angle(lane.heading_at(clamp(s, 0.0, lane.length)) - self.heading))
             best = min(best, float(np.hypot(lat, ds)) + 2.0 * dh)
             nxt = town.successors[index]
             if len(nxt) != 1 or junction is None or town.lane_junction.get(nxt[0]) != junction:

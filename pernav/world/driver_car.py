@@ -12,8 +12,9 @@ from pernav.world.constants import OPPOSITE, PREPARES, SIDED, TURNS, Instruction
 from pernav.world.controls import ExternalControls, PersonAtTheWheel
 from pernav.world.drivers import Driver
 from pernav.world.events import Heard
+from pernav.world.scalars import clamp, wrap_angle
 from pernav.world.towns import SPEED_RING, LaneIndex, turn_direction
-from pernav.world.vehicles import PathCar, _clamp, _wrap, braking_for, idm_acceleration
+from pernav.world.vehicles import PathCar, braking_for, idm_acceleration
 
 if TYPE_CHECKING:
     from pernav.world.simulation import World
@@ -310,7 +311,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             acc = min(acc, idm_acceleration(v, cruise, stop, v, 1.0, d.comfort_accel, d.comfort_decel))
         if now < self.swerving_until:
             acc = min(acc, -0.8 * harsh_limit) if v > d.turn_speed else acc
-        acc = _clamp(acc, -harsh_limit, d.comfort_accel * 1.5)
+        acc = clamp(acc, -harsh_limit, d.comfort_accel * 1.5)
         return acc
 
     def _steer_and_pedal(self, acc: float, now: float) -> None:
@@ -328,9 +329,9 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
                 self.steer += np.sign(err) * min(abs(err), 1.6 * world.dt)
         else:
             self.steer += (steer_cmd - self.steer) * min(1.0, world.dt / 0.12)
-        self.steer = _clamp(self.steer, -d.vehicle.max_steering, d.vehicle.max_steering)
+        self.steer = clamp(self.steer, -d.vehicle.max_steering, d.vehicle.max_steering)
         self.accel = acc
-        self.brake_input = _clamp(-acc / harsh_limit, 0.0, 1.0)
+        self.brake_input = clamp(-acc / harsh_limit, 0.0, 1.0)
         self.action = {"steering": self.steer, "acceleration": acc}
 
     def _options_at(self, k: int, node: str) -> dict[str, list[LaneIndex]]:
@@ -398,7 +399,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             self.ran_wide = False
         elif self.skid_time >= self.SKID_TIME:
             self.ran_wide = True
-        yaw_rate = _clamp(yaw_rate, -grip, grip)
+        yaw_rate = clamp(yaw_rate, -grip, grip)
         self.position = self.position + v * np.array([np.cos(self.heading + beta), np.sin(self.heading + beta)]) * dt
-        self.heading = _wrap(self.heading + yaw_rate * dt)
+        self.heading = wrap_angle(self.heading + yaw_rate * dt)
         self.speed = max(0.0, v + self.accel * dt)

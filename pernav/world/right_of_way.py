@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
+from pernav.world.scalars import wrap_angle
 from pernav.world.towns import ANGLE, RING_MERGE_ANGLE, RING_RADIUS, Town
-from pernav.world.vehicles import PathCar, _wrap
+from pernav.world.vehicles import PathCar
 
 
 class RightOfWay:
@@ -48,7 +49,7 @@ class RightOfWay:
             if self.town.lane_junction.get(other.path[0]) != jid or ":r" not in other.path[0][0]:
                 continue
             phi = np.arctan2(other.position[1] - j.center[1], other.position[0] - j.center[0])
-            delta = _wrap(phi - merge) * RING_RADIUS  # > 0: upstream (circulation decreases phase)
+            delta = wrap_angle(phi - merge) * RING_RADIUS  # > 0: upstream (circulation decreases phase)
             if -7.0 < delta < 16.0:
                 return False
         return True

@@ -9,8 +9,9 @@ from highway_env.road.lane import CircularLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
+from pernav.world.scalars import clamp
 from pernav.world.towns import LaneIndex
-from pernav.world.vehicles import PathCar, _clamp, braking_for, idm_acceleration
+from pernav.world.vehicles import PathCar, braking_for, idm_acceleration
 
 if TYPE_CHECKING:
     from pernav.world.driver_car import DriverCar
@@ -109,8 +110,8 @@ class TrafficCar(PathCar, IDMVehicle):
         stop = world.stop_line(self)
         if stop is not None:
             acc = min(acc, idm_acceleration(self.speed, desired, stop, self.speed, 1.0, 2.5, 4.0))
-        steering = _clamp(self.lane_steering(0.6), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE)
-        Vehicle.act(self, {"steering": steering, "acceleration": _clamp(acc, -7.0, 3.0)})
+        steering = clamp(self.lane_steering(0.6), -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE)
+        Vehicle.act(self, {"steering": steering, "acceleration": clamp(acc, -7.0, 3.0)})
 
     def step(self, dt: float) -> None:
         Vehicle.step(self, dt)

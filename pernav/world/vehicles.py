@@ -6,19 +6,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pernav.world.scalars import clamp, wrap_angle
 from pernav.world.towns import LaneIndex
 
 if TYPE_CHECKING:
     from pernav.world.simulation import World
-
-def _wrap(a: float) -> float:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
-def _clamp(x: float, lo: float, hi: float) -> float:
-    """``np.clip`` of one scalar, to the same value (NaN passes through), ~10x faster: the simulator clamps
-    several scalars per car and frame, which made ``np.clip`` 14 % of an episode's time."""
-    return float(min(max(x, lo), hi))
 
 
 def idm_acceleration(speed: float, desired: float, gap: float, closing: float, headway: float,
@@ -78,10 +70,10 @@ class PathCar:
         else:
             heading = lane.heading_at(ahead)
         v = max(self.speed, 0.5)
-        heading_cmd = np.arcsin(_clamp(-lat / lateral_tau / v, -1, 1))
-        heading_ref = heading + _clamp(heading_cmd, -np.pi / 4, np.pi / 4)
-        rate = _wrap(heading_ref - self.heading) / 0.25
-        slip = np.arcsin(_clamp(self.LENGTH / 2 / v * rate, -1, 1))
+        heading_cmd = np.arcsin(clamp(-lat / lateral_tau / v, -1, 1))
+        heading_ref = heading + clamp(heading_cmd, -np.pi / 4, np.pi / 4)
+        rate = wrap_angle(heading_ref - self.heading) / 0.25
+        slip = np.arcsin(clamp(self.LENGTH / 2 / v * rate, -1, 1))
         return float(np.arctan(2 * np.tan(slip)))
 
     def speed_constraints(self, horizon: float) -> list[tuple[float, float]]:

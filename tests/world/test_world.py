@@ -5,6 +5,7 @@ import pytest
 from highway_env.road.lane import CircularLane, StraightLane
 from highway_env.road.road import RoadNetwork
 
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import (
     PROFILE_RANGES,
     Context,
@@ -16,7 +17,7 @@ from pernav.world.drivers import (
 )
 from pernav.world.routing import RouteError, astar, plan_route
 from pernav.world.simulation import World
-from pernav.world.towns import TOWN_NAMES, TownError, get_town
+from pernav.world.towns import TownError, get_town
 
 
 def test_astar_is_metric_shortest_where_bfs_is_not():
@@ -161,15 +162,28 @@ def test_plan_route_passes_through_goals():
 
 def test_scalar_clamp_is_np_clip():
     """The simulator's fast scalar clamp gives np.clip's value for every kind of input, NaN and infinities included."""
-    from pernav.world.vehicles import _clamp
+    from pernav.world.scalars import clamp
 
     rng = np.random.default_rng(0)
     values = [*rng.normal(0, 3, 200), 0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, np.float64(2.5), 3]
     for lo, hi in [(-1, 1), (-np.pi / 4, np.pi / 4), (0.0, 1.0), (-7.0, 3.0)]:
         for x in values:
-            got, want = _clamp(x, lo, hi), float(np.clip(x, lo, hi))
+            got, want = clamp(x, lo, hi), float(np.clip(x, lo, hi))
             assert (np.isnan(got) and np.isnan(want)) or got == want, (x, lo, hi)
 
+
+
+def test_scalar_wrap_angle_is_the_tensor_wrap():
+    """The simulator's scalar angle wrap lands in [-pi, pi) and agrees with the model's tensor wrap."""
+    import torch
+
+    from pernav.model.egocentric import wrap_angle as wrap_tensor
+    from pernav.world.scalars import wrap_angle
+
+    values = [*np.random.default_rng(0).normal(0, 10, 200), 0.0, np.pi, -np.pi, 3 * np.pi, -7.5]
+    wrapped = [wrap_angle(x) for x in values]
+    assert all(-np.pi <= w < np.pi for w in wrapped)
+    assert np.allclose(wrapped, wrap_tensor(torch.tensor(values, dtype=torch.float64)).numpy())
 
 def test_leader_lookups_cached_per_path_equal_a_fresh_build():
     """leader_of's per-path lookups, cached on the town, equal the ones built from scratch for every path."""
