@@ -61,9 +61,31 @@ from torchrl.data import Categorical, Composite, OneHot, TensorSpec
 from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules.planners import MPCPlannerBase
 
-__all__ = ["DiscreteTreeSearchPlanner", "SearchResult"]
+__all__ = ["DiscreteTreeSearchPlanner", "SearchResult", "planning_roots"]
 
 log = logging.getLogger("pernav.planner")
+
+
+def planning_roots(planner: MPCPlannerBase, td: TensorDictBase, source: str = "") -> TensorDictBase:
+    """The opening of every planner's ``planning``: the roots to search, ``td`` flattened to ``[B]``, once it holds
+    each of the ``planner``'s ``in_keys``; else a ``KeyError`` that names the missing keys (and, in ``source``,
+    where they come from).
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> class Needs:
+        ...     in_keys = ["observation"]
+        >>> planning_roots(Needs(), TensorDict({"observation": torch.zeros(2, 3, 4)}, [2, 3])).shape
+        torch.Size([6])
+        >>> planning_roots(Needs(), TensorDict({}, [2]), "an env writes it")
+        Traceback (most recent call last):
+        ...
+        KeyError: "Needs needs ['observation'] in the tensordict (an env writes it)"
+    """
+    missing = [k for k in planner.in_keys if k not in td.keys(True, True)]
+    if missing:
+        raise KeyError(f"{type(planner).__name__} needs {missing} in the tensordict" + (f" ({source})" if source else ""))
+    return td.reshape(-1)
 
 
 @dataclass
@@ -365,11 +387,9 @@ class DiscreteTreeSearchPlanner(MPCPlannerBase):
                          "allow at least one action per root and level")
 
     def planning(self, td: TensorDictBase) -> torch.Tensor:
-        missing = [k for k in self.in_keys if k not in td.keys(True, True)]
-        if missing:
-            raise KeyError(f"{type(self).__name__} needs {missing} in the tensordict")
+        roots = planning_roots(self, td)
         t0 = time.perf_counter()
-        self.last = self.search(td.reshape(-1))
+        self.last = self.search(roots)
         first = self.last.actions[:, 0]
         self.planning_s += time.perf_counter() - t0
         # in the spec's own dtype and shape: MPCPlannerBase.forward then keeps it as it is (an action outside the

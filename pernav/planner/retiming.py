@@ -53,8 +53,9 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.env.layout import ROUTE_SPACING
-from pernav.model.dynamics import GX, GY, STATE_DIM
+from pernav.env.layout import ROUTE_SPACING, STATE_DIM
+from pernav.model.egocentric import GX, GY
+from pernav.planner.discrete import planning_roots
 from pernav.world.constants import Instruction
 from pernav.world.cost import tracking_cost
 
@@ -223,12 +224,9 @@ class RetimingPlanner(MPCPlannerBase):
         return int(seqs[chosen, 0]), result
 
     def planning(self, td: TensorDictBase) -> torch.Tensor:
-        missing = [k for k in self.in_keys if k not in td.keys()]
-        if missing:
-            raise KeyError(f"RetimingPlanner needs {missing} in the tensordict (the navigation env writes "
-                           "explore_future/route_ahead/action_mask; wrap it with HistoryWindow for history)")
+        flat = planning_roots(self, td, "the navigation env writes explore_future/route_ahead/action_mask; wrap it "
+                                        "with HistoryWindow for history")
         t0 = time.perf_counter()
-        flat = td.reshape(-1)
         actions, self.last = [], []
         for i in range(flat.shape[0]):
             action, result = self.decide(flat[i])

@@ -38,9 +38,9 @@ from contextlib import nullcontext
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.dynamics import GX, GY, X, Y
+from pernav.model.egocentric import GX, GY, X, Y
 from pernav.model.losses import using
-from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult
+from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult, planning_roots
 from pernav.world.constants import TURN_INSTRUCTIONS
 from pernav.world.cost import tracking_cost
 
@@ -150,12 +150,9 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
         return SearchResult(seqs[best].unsqueeze(0), ret[:, best], seqs.numel())
 
     def planning(self, td: TensorDictBase) -> torch.Tensor:
-        missing = [k for k in self.in_keys if k not in td.keys()]
-        if missing:
-            raise KeyError(f"TreeSearchPlanner needs {missing} in the tensordict (the navigation env writes "
-                           "plan_goals/explore_plan/action_mask; wrap it with HistoryWindow for history)")
+        flat = planning_roots(self, td, "the navigation env writes plan_goals/explore_plan/action_mask; wrap it "
+                                        "with HistoryWindow for history")
         t0 = time.perf_counter()
-        flat = td.reshape(-1)
         params = self.params[0] if isinstance(self.params, list) else self.params
         with using(self.model, params) if self.model is not None else nullcontext():
             imagined = self.model is None or bool(self.model.road)
