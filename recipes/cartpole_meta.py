@@ -45,10 +45,10 @@ from tensordict import TensorDictBase
 from torchrl.envs import GymWrapper, TransformedEnv
 from tqdm import tqdm
 
-from pernav.diagnostics.stats import bootstrap_ci, paired_difference
 from pernav.model import DynamicsModel, ImaginedEnv, adapt
 from pernav.model.losses import using
 from pernav.planner import DiscreteTreeSearchPlanner
+from pernav.study.stats import bootstrap_ci, paired_difference
 from pernav.trainer import FTMLTrainer, RoundBuffers, TrainConfig
 from pernav.transforms import HistoryWindow
 

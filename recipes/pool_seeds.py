@@ -24,9 +24,9 @@ import json
 import sys
 from pathlib import Path
 
-from pernav.diagnostics.stats import paired_difference
 from pernav.study.compare import compare
 from pernav.study.report import comparison_table
+from pernav.study.stats import paired_difference
 
 
 def adaptation_share(results: list[dict]) -> dict[str, list[int]]:

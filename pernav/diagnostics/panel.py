@@ -21,10 +21,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from pernav.diagnostics.stats import gap_closed, paired_difference
 from pernav.diagnostics.true_model import TrueDynamicsEnv
 from pernav.env.torchrl_env import explore_module, oracle_module
 from pernav.planner.factory import build_planner, env_planning_config
+from pernav.study.stats import gap_closed, paired_difference
 from pernav.trainer.collect import episode_metrics, history_env
 from pernav.world.drivers import Context, population_samples
 

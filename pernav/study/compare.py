@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from pernav.diagnostics.stats import bootstrap_ci, gap_closed, paired_difference
+from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference
 
 __all__ = ["HEADROOM", "compare"]
 

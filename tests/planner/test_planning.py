@@ -9,12 +9,12 @@ from tensordict import TensorDict
 
 from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PanelJob, comparison_table, drive_panel_episode
-from pernav.diagnostics.stats import bootstrap_ci, gap_closed, paired_difference
 from pernav.env.navigation import NavigationEnv
 from pernav.model import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import RetimingPlanner, TreeSearchPlanner, build_planner, candidate_plans
 from pernav.study.compare import compare
+from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference
 from pernav.world.cost import tracking_cost
 
 

@@ -30,12 +30,12 @@ import numpy as np
 import torch
 
 import pernav.env.policies as rules
-from pernav.diagnostics.stats import gap_closed, paired_ratio
 from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import PromptPolicy, explore_policy, lateness
 from pernav.study import runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
+from pernav.study.stats import gap_closed, paired_ratio
 from pernav.world.drivers import resolve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pernav.diagnostics.stats import paired_ratio
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module
 from pernav.study import runner
 from pernav.study.schedule import Entry
+from pernav.study.stats import paired_ratio
 from pernav.world.drivers import Population, resolve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -104,7 +104,7 @@ def _paired(episodes: list[dict]) -> dict[tuple, dict]:
 def split(episodes: list[dict], rows: list[dict], excess: float = 0.05, routes: int = 10) -> dict:
     """Explore vs the oracle (paired) in the cells where explore is late (as :func:`late_cells` counts them) and
     in the others: collisions per route set, their ratio and paired CI, tracking's paired CI, cells 10 % cheaper."""
-    from pernav.diagnostics.stats import paired_difference
+    from pernav.study.stats import paired_difference
 
     late = {r["round"] for r in rows if r["explore_late_commit"] - r["oracle_late_commit"] >= excess}
     pairs = _paired(episodes)
@@ -180,11 +180,11 @@ def swerve_probe(towns: tuple[str, ...] = ("Town1", "Town3"), rounds: tuple[int,
     It watches ``DriverCar.commit`` for late re-commits, a read-only wrapper restored afterwards."""
     from pernav.env.episodes import run_episode
     from pernav.env.navigation import NavigationEnv
-    from pernav.world import simulation
+    from pernav.world import driver_car
 
     online = [e for e in paper_schedule() if e.phase == "online"]
     seen: list[dict] = []
-    original = simulation.DriverCar.commit
+    original = driver_car.DriverCar.commit
 
     def watched(car, node, now, late=False):
         if late:
@@ -195,7 +195,7 @@ def swerve_probe(towns: tuple[str, ...] = ("Town1", "Town3"), rounds: tuple[int,
         return original(car, node, now, late)
 
     out = []
-    simulation.DriverCar.commit = watched
+    driver_car.DriverCar.commit = watched
     try:
         for town in towns:
             env = NavigationEnv(town, config={"n_traffic": 8})
@@ -212,7 +212,7 @@ def swerve_probe(towns: tuple[str, ...] = ("Town1", "Town3"), rounds: tuple[int,
                         after = [k for k, t in log if k in ("collision", "edge") and sw["t"] <= t <= sw["t"] + 6.0]
                         out.append({"town": town, "round": i, "route": r, **sw, "after": after})
     finally:
-        simulation.DriverCar.commit = original
+        driver_car.DriverCar.commit = original
     return out
 
 

@@ -30,13 +30,13 @@ import numpy as np
 import torch
 from tensordict.nn import TensorDictModule
 
-from pernav.diagnostics.stats import gap_closed, paired_ratio
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
 from pernav.model.timing import timing_features
 from pernav.study import runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
+from pernav.study.stats import gap_closed, paired_ratio
 from pernav.world.drivers import Population, resolve
 
 

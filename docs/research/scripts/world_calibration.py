@@ -28,13 +28,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pernav.diagnostics.stats import paired_difference as paired_bootstrap_ci
 from pernav.env.episodes import run_episode
 from pernav.env.navigation import NavigationEnv
 from pernav.study.config import preset
 from pernav.study.schedule import paper_schedule
+from pernav.study.stats import paired_difference as paired_bootstrap_ci
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, population_samples
-from pernav.world.towns import TOWN_NAMES
 
 POLICIES = ("explore", "oracle")
 EVENTS = ("swerves", "harsh_brakes", "forgotten", "discarded", "misunderstood", "ignored", "traffic_collisions")
