@@ -256,7 +256,7 @@ def _bench_retime(data, routes: dict[str, list[int]], fast: dict[str, Any], n_st
     the same with the other road option."""
     from pernav.model import DynamicsModel
     from pernav.model.adapt import meta_parameters
-    from pernav.model.dynamics import road_of
+    from pernav.model.egocentric import road_of
     from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
     from pernav.planner import RetimingPlanner
     from pernav.study.config import preset
@@ -293,7 +293,7 @@ def _flat_search(planner, roots):
     reward terms; the best sequence and the model evaluations it took."""
     import torch
 
-    from pernav.model.dynamics import GX, GY, X, Y
+    from pernav.model.egocentric import GX, GY, X, Y
     from pernav.world.cost import tracking_cost
 
     model, root = planner.model, roots[0]

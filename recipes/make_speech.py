@@ -4,7 +4,7 @@ Not an example to copy: the generator of the speech files committed in ``pernav/
 re-make them (a few seconds with a speech engine installed).
 
 Writes ``{instruction}_{playback}.wav`` for instructions 1-6 (0, "no instruction", is silence: no file) and
-the playback speeds of :data:`pernav.world.simulation.PLAYBACK`, as 16-bit mono PCM at 16 kHz, into the
+the playback speeds of :data:`pernav.world.constants.PLAYBACK`, as 16-bit mono PCM at 16 kHz, into the
 folder given (the package's copy is ``pernav/play/speech``, committed: the package never needs a speech
 engine at run time).
 

@@ -31,6 +31,7 @@ from pernav.cli import MAX_TRAFFIC, main
 from pernav.env.navigation import load_user
 from pernav.study.config import PRESETS
 from pernav.study.schedule import FIELDS, ScheduleError, load_schedule, parse_schedule
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
     NAMED_USERS,
@@ -39,7 +40,6 @@ from pernav.world.drivers import (
     DriverProfile,
     ProfileError,
 )
-from pernav.world.towns import TOWN_NAMES
 
 FAST = settings(max_examples=150, deadline=None, derandomize=True)
 CLI = settings(max_examples=40, deadline=None, derandomize=True,

@@ -46,7 +46,7 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import env_planning_config
 from pernav.planner.retiming import RetimedExplore
-from pernav.study.runner import final_models
+from pernav.study.checkpoints import final_models
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import drive, history_env
 from pernav.trainer.ensemble import EnsembleTrainer

@@ -29,7 +29,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from pernav.env.navigation import STATE_DIM, NavigationEnv
+from pernav.env.layout import STATE_DIM
+from pernav.env.navigation import NavigationEnv
 
 __all__ = ["TrueDynamicsEnv"]
 

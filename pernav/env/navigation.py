@@ -26,7 +26,6 @@ import gymnasium as gym
 import numpy as np
 
 from pernav.env.layout import STATE_DIM
-from pernav.env.layout import STATE_KEYS as STATE_KEYS  # its home is pernav.env.layout; old imports keep working
 from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
 from pernav.env.policies import (
     BeliefSource,
@@ -36,7 +35,7 @@ from pernav.env.policies import (
     explore_policy,
     oracle_policy,
 )
-from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, Instruction, audio_duration
+from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, TOWN_NAMES, Instruction, audio_duration
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -51,7 +50,7 @@ from pernav.world.drivers import (
 from pernav.world.files import DataFileError, is_file, read_data_file
 from pernav.world.routing import Route, RouteError, plan_route
 from pernav.world.simulation import World
-from pernav.world.towns import TOWN_NAMES, TownError, get_town
+from pernav.world.towns import TownError, get_town
 
 #: what the navigation senses of the car at each of the world's frames between two decisions (the ``"frames"`` entry,
 #: ``[frequency, len(FRAME_KEYS)]``): speed (m/s), acceleration (m/s^2), brake pedal (0-1), steering (-1..1 of the

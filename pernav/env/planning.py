@@ -31,11 +31,10 @@ import numpy as np
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
-from pernav.world.constants import N_INSTRUCTIONS, TURN_INSTRUCTIONS, Instruction
-from pernav.world.routing import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING, Route
+from pernav.world.constants import GOAL_LOOKAHEAD_S, N_INSTRUCTIONS, WAYPOINT_SPACING, Instruction
+from pernav.world.routing import Route
 
-__all__ = ["RING_REACH", "ROUTE_BEHIND", "ROUTE_SPACING", "TURN_REACH", "TURN_INSTRUCTIONS", "allowed_instructions",
-           "explore_plan", "plan_goals", "route_ahead"]
+__all__ = ["RING_REACH", "TURN_REACH", "allowed_instructions", "explore_plan", "plan_goals", "route_ahead"]
 
 TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"

@@ -26,7 +26,7 @@ import numpy as np
 from pernav.world.constants import SIDED, WAYPOINT_SPACING, Instruction, audio_duration
 from pernav.world.drivers import AVERAGE_CONTEXT, POPULATION_AVERAGE, Driver, resolve
 from pernav.world.routing import Manoeuvre, Route
-from pernav.world.simulation import SPEED_RING
+from pernav.world.towns import SPEED_RING
 
 TURN = {"left": Instruction.TURN_LEFT, "right": Instruction.TURN_RIGHT}
 PREPARE = {"left": Instruction.PREPARE_LEFT, "right": Instruction.PREPARE_RIGHT}

@@ -1,7 +1,8 @@
 """The adaptable world model: dynamics net (any state), L-step loss, one-shot adaptation U(P, tau), TorchRL model envs.
 
-The navigation's own parts (``ImaginedNavigationEnv``, ``make_world_model``, ``EgocentricDifferences``,
-``ego_delta``) live in :mod:`pernav.model.navigation`; they still import from here, on first use.
+The navigation's own parts live in :mod:`pernav.model.navigation` (``ImaginedNavigationEnv``, ``make_world_model``)
+and :mod:`pernav.model.egocentric` (``EgocentricDifferences``, ``apply_delta``, ``ego_delta``); they also import from
+here, on first use.
 """
 
 from pernav._lazy import lazy_exports
@@ -26,9 +27,8 @@ __all__ = [
     "using",
 ]
 
-_NAVIGATION = {name: "pernav.model.navigation"
-               for name in ("EgocentricDifferences", "ImaginedNavigationEnv", "apply_delta", "ego_delta",
-                            "make_world_model")}
+_NAVIGATION = {**{name: "pernav.model.navigation" for name in ("ImaginedNavigationEnv", "make_world_model")},
+               **{name: "pernav.model.egocentric" for name in ("EgocentricDifferences", "apply_delta", "ego_delta")}}
 __getattr__ = lazy_exports(__name__, _NAVIGATION)[0]
 
 

@@ -30,15 +30,11 @@ from torch import nn
 from torchrl.data import Categorical, OneHot, TensorSpec
 from torchrl.modules import MLP
 
-from pernav._lazy import lazy_exports
-from pernav.model.egocentric import ROAD_MAX, STATE_DIM, EgocentricDifferences
+from pernav.env.layout import STATE_DIM
+from pernav.model.egocentric import ROAD_MAX, EgocentricDifferences
 from pernav.transforms.history import HistoryWindow
 
 __all__ = ["DELTAS", "DynamicsModel", "PlainDifferences"]
-
-# the navigation's layout moved to pernav.model.egocentric; its names stay importable from here
-__getattr__ = lazy_exports(__name__, {name: "pernav.model.egocentric" for name in (
-    "GX", "GY", "HEADING", "VX", "VY", "X", "Y", "apply_delta", "ego_delta", "road_of", "road_points", "wrap_angle")})[0]
 
 
 class PlainDifferences:

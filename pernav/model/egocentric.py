@@ -10,7 +10,7 @@ from tensordict import TensorDictBase
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING, STATE_DIM, STATE_KEYS
 
-__all__ = ["GX", "GY", "HEADING", "ROAD_MAX", "STATE_DIM", "VX", "VY", "X", "Y", "EgocentricDifferences", "apply_delta",
+__all__ = ["GX", "GY", "HEADING", "ROAD_MAX", "VX", "VY", "X", "Y", "EgocentricDifferences", "apply_delta",
            "ego_delta", "road_of", "road_points", "wrap_angle"]
 
 X, Y, VX, VY, HEADING, GX, GY = (STATE_KEYS.index(k) for k in ("x", "y", "vx", "vy", "heading", "goal_x", "goal_y"))

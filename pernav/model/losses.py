@@ -31,7 +31,8 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 
 from pernav.model.actions import action_indices
-from pernav.model.dynamics import DynamicsModel, road_of
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.egocentric import road_of
 
 __all__ = ["multistep_loss", "single_step_loss", "using"]
 

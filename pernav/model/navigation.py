@@ -32,13 +32,12 @@ from torchrl.envs import ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
 from pernav.model.dynamics import DynamicsModel
-from pernav.model.egocentric import GX, GY, EgocentricDifferences, X, Y, apply_delta, ego_delta, road_of, road_points
+from pernav.model.egocentric import GX, GY, X, Y, road_points
 from pernav.model.imagined import PlainWorldModel, model_device
 from pernav.model.losses import using
 from pernav.world.cost import tracking_cost
 
-__all__ = ["EgocentricDifferences", "ImaginedNavigationEnv", "apply_delta", "ego_delta", "make_world_model", "road_of",
-           "road_points", "route_index"]
+__all__ = ["ImaginedNavigationEnv", "make_world_model", "route_index"]
 
 ROUTE_REACH = 8  # route points (3 m each) the car may advance in one imagined step; 2 back (no jumps)
 

@@ -1,8 +1,9 @@
 """Discrete tree-search MPC for any discrete-action model env (:class:`DiscreteTreeSearchPlanner`).
 
 The navigation's planners (the paper's ``TreeSearchPlanner``, the default ``RetimingPlanner``, ``build_planner``)
-live in :mod:`pernav.planner.navigation`; they still import from here, on first use, so importing this package
-loads none of the navigation (its cost, its layout).
+live in their own modules (``tree_search``, ``retiming``, ``factory``), gathered in :mod:`pernav.planner.navigation`;
+they also import from here, on first use, so importing this package loads none of the navigation (its cost, its
+layout).
 """
 
 from pernav._lazy import lazy_exports
@@ -10,9 +11,10 @@ from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult
 
 __all__ = ["DiscreteTreeSearchPlanner", "SearchResult"]
 
-_NAVIGATION = {name: "pernav.planner.navigation"
-               for name in ("PLANNER_DEFAULTS", "PLANNER_KINDS", "RetimedExplore", "RetimingPlanner", "RetimingResult",
-                            "TreeSearchPlanner", "build_planner", "candidate_plans")}
+_NAVIGATION = {**{name: "pernav.planner.factory" for name in ("PLANNER_DEFAULTS", "PLANNER_KINDS", "build_planner")},
+               **{name: "pernav.planner.retiming"
+                  for name in ("RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans")},
+               "TreeSearchPlanner": "pernav.planner.tree_search"}
 __getattr__ = lazy_exports(__name__, _NAVIGATION)[0]
 
 

@@ -1,6 +1,6 @@
 """A person's controls of the navigated car (keyboard, joystick or wheel) and a scripted bot that presses keys.
 
-Each is an :class:`~pernav.world.simulation.ExternalControls`: set it as ``world.ego.external`` and the car takes
+Each is an :class:`~pernav.world.controls.ExternalControls`: set it as ``world.ego.external`` and the car takes
 its steering, throttle and brake from ``read(car)`` every frame, through the same vehicle physics, traffic,
 right of way and event counting as the simulated drivers. The simulated driver still hears every prompt.
 
@@ -28,7 +28,8 @@ import time
 from collections.abc import Collection, Mapping
 from typing import Any
 
-from pernav.world.simulation import ControlInput, DriverCar
+from pernav.world.controls import ControlInput
+from pernav.world.driver_car import DriverCar
 
 __all__ = ["AxisCheck", "ControlsError", "JoystickControls", "KeyboardControls", "ScriptedControls", "SessionKeys",
            "parse_axes"]
@@ -294,7 +295,7 @@ class AxisCheck:
 
 class ScriptedControls(_Controls):
     """A bot that presses the keys the simulated driver would: each frame it asks the simulated driver of the
-    same car what it would do (:meth:`~pernav.world.simulation.DriverCar.simulated_controls`, which also makes its
+    same car what it would do (:meth:`~pernav.world.driver_car.DriverCar.simulated_controls`, which also makes its
     branch and lane decisions from what it heard), then holds the steering key that brings the wheel closest to
     that, and the pedal key that keeps the acceleration it got on average closest to the one wanted (the error
     carries over to the next frames: a driver tapping the brake). ``quit_after`` frames, it asks to quit (a

@@ -6,7 +6,7 @@ and accelerates less. What the keys did not know is that a truck's steering resp
 driver's steering time constant is longer in the truck (:func:`pernav.world.drivers.resolve`). The same ratio
 slows the person's wheel here: the rate a held key turns it and it returns to the centre, and a wheel's lag.
 
-Only the given car changes (instance attributes over :class:`~pernav.world.simulation.DriverCar`'s constants), and
+Only the given car changes (instance attributes over :class:`~pernav.world.driver_car.DriverCar`'s constants), and
 only where ``pernav play`` calls this: simulated drives never read these constants (they steer through
 ``_act_simulated``), so study episodes are unchanged.
 
@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from pernav.world.driver_car import DriverCar
 from pernav.world.drivers import Driver, resolve
-from pernav.world.simulation import DriverCar
 
 __all__ = ["apply_handling", "steering_lag_ratio"]
 

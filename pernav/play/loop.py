@@ -47,9 +47,9 @@ from tensordict import TensorDictBase
 from pernav.env.navigation import load_user
 from pernav.play.controls import ScriptedControls
 from pernav.play.handling import apply_handling
-from pernav.world.constants import ACTION_NAMES, PLAYBACK, audio_duration
+from pernav.world.constants import ACTION_NAMES, PLAYBACK, TOWN_NAMES, audio_duration
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
-from pernav.world.towns import TOWN_NAMES, TownError, get_town
+from pernav.world.towns import TownError, get_town
 
 __all__ = ["POLICIES", "PlayError", "PlayQuit", "PlayResult", "PlaySession", "make_speaker", "open_speaker"]
 

@@ -13,7 +13,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pernav.play.loop import PlayError
-from pernav.world.towns import TOWN_NAMES, get_town
+from pernav.world.constants import TOWN_NAMES
+from pernav.world.towns import get_town
 
 __all__ = ["SESSION_FILES", "check_session"]
 

@@ -19,7 +19,7 @@ from pernav.study.follow import repeat_schedule
 from pernav.study.headroom import personal_schedule, split_schedule, sweep_schedule
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
-from pernav.world.towns import TOWN_NAMES
+from pernav.world.constants import TOWN_NAMES
 
 __all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig",
            "learner_options", "preset"]

@@ -25,10 +25,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+from pernav.env.layout import STATE_DIM
 from pernav.study.checkpoints import file_sha256
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import CONTEXT_CHOICES, NAMED_USERS, Context, DriverProfile, ProfileError, named_user
 from pernav.world.files import DataFileError, is_file, read_data_file
-from pernav.world.towns import TOWN_NAMES
 
 __all__ = ["Entry", "ScheduleError", "check_recorded", "load_schedule", "paper_schedule", "parse_schedule"]
 
@@ -117,8 +118,6 @@ def _load(where: str, path: str) -> Any:
 def _check_drive(where: str, path: str) -> None:
     """What a drive must be whatever the study: loadable, the study's keys and state size, the 7 instructions,
     a town in its metrics file (the K of its history is checked against the study in :func:`check_recorded`)."""
-    from pernav.model.dynamics import STATE_DIM
-
     td = _load(where, path)
     bad = f"{where}: field 'drives': drive {path!r}"
     keys = set(td.keys(include_nested=True))

@@ -38,7 +38,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
 
 from pernav.model.actions import action_indices
-from pernav.model.dynamics import road_of
+from pernav.model.egocentric import road_of
 
 __all__ = ["KEYS", "SENSING_KEYS", "RoundBuffers"]
 

@@ -21,7 +21,7 @@ from torchrl.envs import EnvBase, TransformedEnv
 
 from pernav.env.layout import STATE_KEYS
 from pernav.env.torchrl_env import make_torchrl_env
-from pernav.model.dynamics import road_of
+from pernav.model.egocentric import road_of
 from pernav.transforms.history import HistoryWindow
 from pernav.world.constants import Instruction
 

@@ -39,7 +39,8 @@ import torch
 from tensordict import TensorDictBase
 
 from pernav.model.adapt import LossFn, adapt, trajectory_windows
-from pernav.model.dynamics import ROAD_MAX, DynamicsModel, road_of
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.egocentric import ROAD_MAX, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
 from pernav.world.files import key_values

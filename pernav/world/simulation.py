@@ -1,7 +1,7 @@
 """The simulated world: a driver who hears voice instructions, IDM traffic with right-of-way, events.
 
-The parts live in their own modules (events, vehicles, right_of_way, traffic, controls, driver_car); this
-module holds the :class:`World` and re-exports them. One :class:`World` holds a town's highway-env ``Road``,
+The parts live in their own modules (events, vehicles, right_of_way, traffic, controls, driver_car) and are
+imported from there; this module holds the :class:`World`. One :class:`World` holds a town's highway-env ``Road``,
 the driver's car (:class:`DriverCar`) and traffic (:class:`TrafficCar`), both highway-env vehicles.
 ``World.frame()`` advances one simulation frame; the gymnasium env runs ``frequency`` frames per policy step.
 
@@ -30,19 +30,16 @@ from highway_env import utils
 from highway_env.road.road import Road
 from highway_env.vehicle.kinematics import Vehicle
 
-# the world's parts, one module each; importable from here as before
-from pernav.world.controls import ControlInput, ExternalControls, PersonAtTheWheel
 from pernav.world.driver_car import DriverCar
 from pernav.world.drivers import Driver
-from pernav.world.events import Events, Heard
+from pernav.world.events import Events
 from pernav.world.right_of_way import RightOfWay
 from pernav.world.routing import Route
-from pernav.world.towns import LANE_WIDTH, SPEED_RING, LaneIndex, Town
+from pernav.world.towns import LANE_WIDTH, LaneIndex, Town
 from pernav.world.traffic import TrafficCar
-from pernav.world.vehicles import PathCar, braking_for, idm_acceleration
+from pernav.world.vehicles import PathCar
 
-__all__ = ["SPEED_RING", "ControlInput", "DriverCar", "Events", "ExternalControls", "Heard", "PathCar",
-           "PersonAtTheWheel", "RightOfWay", "TrafficCar", "World", "braking_for", "idm_acceleration"]
+__all__ = ["World"]
 
 
 def _path_ahead(town: Town, path: tuple[LaneIndex, ...]) -> tuple[dict, list[float], dict]:

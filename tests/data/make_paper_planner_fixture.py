@@ -15,7 +15,7 @@ import torch
 from tensordict import TensorDict
 
 from pernav.model import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import TreeSearchPlanner
 
 S = 14

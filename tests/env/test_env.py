@@ -12,8 +12,9 @@ from gymnasium.utils.env_checker import check_env
 import pernav  # noqa: F401  (registers the ids)
 from pernav.cli import main
 from pernav.env.navigation import NavigationEnv
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import ProfileError
-from pernav.world.towns import TOWN_NAMES, TownError
+from pernav.world.towns import TownError
 
 
 @pytest.mark.parametrize("town", TOWN_NAMES)

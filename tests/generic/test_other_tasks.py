@@ -260,13 +260,14 @@ def test_history_window_records_a_scalar_observation_as_one_column():
 
 def test_generic_packages_export_generic_parts_and_load_no_navigation():
     """``pernav.planner`` loads neither the navigation's cost nor its layout; the navigation's parts live in
-    their own modules, and the old import paths still work."""
+    their own modules, and the packages still name them."""
     code = ("import sys, pernav.planner, pernav.transforms; "
             "print(sorted({'pernav.world.cost', 'pernav.env.layout', 'pernav.planner.tree_search'} & set(sys.modules)))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
     import pernav.model
     import pernav.planner
+    from pernav.model import egocentric
     from pernav.model import navigation as model_navigation
     from pernav.planner import navigation as planner_navigation
 
@@ -274,14 +275,10 @@ def test_generic_packages_export_generic_parts_and_load_no_navigation():
                   "RetimingPlanner", "build_planner"}
     assert not navigation & {*pernav.model.__all__, *pernav.planner.__all__}
     assert {"LossFn", "DynamicsModel", "ImaginedEnv", "PlainWorldModel"} <= set(pernav.model.__all__)
-    assert pernav.model.ImaginedNavigationEnv is model_navigation.ImaginedNavigationEnv  # the old paths
-    assert pernav.model.ego_delta is model_navigation.ego_delta
+    assert pernav.model.ImaginedNavigationEnv is model_navigation.ImaginedNavigationEnv  # the package paths
+    assert pernav.model.ego_delta is egocentric.ego_delta
     assert pernav.planner.TreeSearchPlanner is planner_navigation.TreeSearchPlanner
     assert pernav.planner.build_planner is planner_navigation.build_planner
-    from pernav.model.dynamics import GX, EgocentricDifferences  # noqa: F401
-    from pernav.model.world_model import ImaginedNavigationEnv
-
-    assert ImaginedNavigationEnv is model_navigation.ImaginedNavigationEnv
     assert "pernav.env" not in (pernav.transforms.HistoryWindow.__doc__ or "")  # its example needs no simulator
 
 

@@ -11,7 +11,7 @@ from navigation_helpers import seeded_model as _model
 from tensordict import TensorDict
 
 from pernav.model import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.trainer.collect import history_env
 
 

@@ -11,7 +11,7 @@ from tensordict import TensorDict
 
 from pernav.model import DynamicsModel
 from pernav.model.adapt import adapt, meta_parameters
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.trainer.ftml import TrainConfig

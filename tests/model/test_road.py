@@ -12,7 +12,7 @@ from tensordict import TensorDict
 
 from pernav.model import DynamicsModel
 from pernav.model.adapt import meta_parameters
-from pernav.model.dynamics import ROAD_MAX, road_points
+from pernav.model.egocentric import ROAD_MAX, road_points
 from pernav.model.losses import multistep_loss, single_step_loss
 from pernav.model.navigation import ROUTE_REACH, ImaginedNavigationEnv, make_world_model, route_index
 from pernav.trainer.buffers import RoundBuffers

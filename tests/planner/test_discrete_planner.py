@@ -20,7 +20,7 @@ from torchrl.envs import EnvBase, ModelBasedEnvBase, check_env_specs
 from torchrl.modules import WorldModelWrapper
 
 from pernav.model import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import DiscreteTreeSearchPlanner, TreeSearchPlanner
 
 D, A = 3, 4

@@ -17,7 +17,7 @@ from torchrl.collectors import Collector
 
 from pernav.env.planning import TURN_REACH
 from pernav.model import DynamicsModel
-from pernav.model.world_model import ImaginedNavigationEnv, make_world_model
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import TreeSearchPlanner
 from pernav.trainer.collect import history_env
 

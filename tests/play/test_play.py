@@ -18,7 +18,7 @@ from pernav.env.navigation import NavigationEnv
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlaySession
 from pernav.trainer.drives import load_drive, read_metrics, save_drive
-from pernav.world.simulation import ControlInput
+from pernav.world.controls import ControlInput
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # windows drawn off screen
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")  # and no sound

@@ -219,7 +219,7 @@ class _Keys:
         pass
 
     def read(self, car):
-        from pernav.world.simulation import ControlInput
+        from pernav.world.controls import ControlInput
 
         self.frames += 1
         self.log.append((float(car.steer), float(car.speed)))
@@ -248,7 +248,7 @@ def test_the_truck_handles_differently_for_a_person():
 def test_the_person_handling_leaves_simulated_drivers_alone():
     from pernav.env.navigation import NavigationEnv
     from pernav.play.handling import apply_handling
-    from pernav.world.simulation import DriverCar
+    from pernav.world.driver_car import DriverCar
 
     constants = (DriverCar.KEY_STEER_RATE, DriverCar.KEY_CENTRE_RATE, DriverCar.WHEEL_LAG)
 

@@ -5,8 +5,8 @@ import pytest
 
 from pernav.env.episodes import drive_routes
 from pernav.env.sweep import best_lead, timing_sweep
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import Context, named_user
-from pernav.world.towns import TOWN_NAMES
 
 PROFILES = {
     "fast_keyboard": (named_user("user4"), Context(equipment="keyboard")),

@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 import pernav  # noqa: F401 - registers the gymnasium ids
-from pernav.env.navigation import STATE_DIM
+from pernav.env.layout import STATE_DIM
+from pernav.world.constants import TOWN_NAMES
 from pernav.world.drivers import Population
-from pernav.world.towns import TOWN_NAMES
 
 EPISODES = int(os.environ.get("PERNAV_FUZZ_EPISODES", "2"))
 BASE_SEED = int(os.environ.get("PERNAV_FUZZ_SEED", "0"))

@@ -6,8 +6,9 @@ import numpy as np
 
 from pernav.env.policies import explore_policy, oracle_policy
 from pernav.world.drivers import REACTION_CV, Context, DriverProfile, named_user, resolve
-from pernav.world.simulation import TrafficCar, World
+from pernav.world.simulation import World
 from pernav.world.towns import get_town
+from pernav.world.traffic import TrafficCar
 
 
 def _world(user="user7", seed=0, n_traffic=0, context=None):

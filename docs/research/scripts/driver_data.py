@@ -37,11 +37,12 @@ import torch
 from tqdm import tqdm
 
 from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode
+from pernav.env.layout import STATE_DIM
 from pernav.model.adapt import meta_parameters
-from pernav.model.dynamics import STATE_DIM, DynamicsModel
+from pernav.model.dynamics import DynamicsModel
 from pernav.planner.factory import env_planning_config, parse_planner_options
 from pernav.planner.retiming import RetimedExplore
-from pernav.study.runner import final_models
+from pernav.study.checkpoints import final_models
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, history_env
 from pernav.trainer.ensemble import EnsembleTrainer

@@ -22,14 +22,15 @@ from pathlib import Path
 
 import torch
 
-from pernav.env.planning import ROUTE_SPACING
+from pernav.env.layout import ROUTE_SPACING
 from pernav.env.torchrl_env import explore_module
 from pernav.model.adapt import meta_parameters
-from pernav.model.dynamics import DynamicsModel, X, Y
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.egocentric import X, Y
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import RetimingPlanner
+from pernav.study.checkpoints import final_models
 from pernav.study.errors import CheckpointError
-from pernav.study.runner import final_models
 from pernav.trainer.collect import drive, history_env
 from pernav.world.drivers import NAMED_USERS, Context, named_user
 
