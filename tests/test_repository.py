@@ -126,3 +126,143 @@ def test_every_path_pointed_into_a_commit_is_in_that_commit() -> None:
             if subprocess.run(["git", "cat-file", "-e", f"{commit}:{path}"], cwd=ROOT,
                               capture_output=True).returncode != 0]
     assert not gone, gone
+
+
+# ----- the layers: world → env → transforms → model → planner → trainer → study, then play and diagnostics ---------
+# A module imports only from its own layer or a lower one. play and diagnostics sit side by side on top (either may
+# import any layer, not each other); the package's entry points (pernav/__init__.py, cli.py, bench.py) sit above
+# them all, and pernav/_lazy.py (the packages' lazy exports) below them all.
+LAYERS = {"_lazy": -1, "world": 0, "env": 1, "transforms": 2, "model": 3, "planner": 4, "trainer": 5, "study": 6,
+          "play": 7, "diagnostics": 7, "entry points": 8}
+_MODULE = re.compile(r"pernav(?:\.\w+)+")  # a module named in a string: a lazy export, importlib, an entry point
+
+
+def module_name(root: Path, path: Path) -> str:
+    parts = path.relative_to(root).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def layer(module: str) -> str:
+    """The layer of a pernav ``module``: its sub-package; a top-level module other than ``_lazy`` is an entry point."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 and parts[1] in LAYERS else "entry points"
+
+
+def imported_modules(source: str) -> list[tuple[int, str]]:
+    """Every pernav module ``source`` imports, with its line: import statements at any depth (a function's lazy
+    import included) and module names in strings (lazy exports, ``importlib``, entry points)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.module:
+            found.append((node.lineno, node.module))
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, alias.name) for alias in node.names]
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) \
+                and (m := _MODULE.fullmatch(node.value.split(":")[0])):
+            found.append((node.lineno, m[0]))
+    return sorted((line, module) for line, module in found if module.split(".")[0] == "pernav")
+
+
+def upward_imports(root: Path) -> list[str]:
+    """``file:line: importer -> imported`` for each import of pernav (under ``root``) that runs up the layers."""
+    found = []
+    for path in sorted((root / "pernav").rglob("*.py")):
+        mine = layer(module_name(root, path))
+        for line, module in imported_modules(path.read_text(encoding="utf-8")):
+            theirs = layer(module)
+            if theirs != mine and LAYERS.get(theirs, 8) >= LAYERS[mine]:
+                found.append(f"{path.relative_to(root)}:{line}: {mine} -> {module}")
+    return found
+
+
+def test_the_layer_reader_finds_lazy_and_string_imports(tmp_path: Path) -> None:
+    (tmp_path / "pernav" / "model").mkdir(parents=True)
+    (tmp_path / "pernav" / "model" / "m.py").write_text(
+        "from pernav.world.towns import Town\nimport pernav.env.layout\n\n\ndef f():\n"
+        "    from pernav.study.stats import bootstrap_ci\n    return importlib.import_module('pernav.planner.x')\n\n"
+        "LAZY = {'a': 'pernav.diagnostics.panel'}\nfrom pernav._lazy import lazy_exports\nimport numpy\n")
+    assert upward_imports(tmp_path) == ["pernav/model/m.py:6: model -> pernav.study.stats",
+                                        "pernav/model/m.py:7: model -> pernav.planner.x",
+                                        "pernav/model/m.py:9: model -> pernav.diagnostics.panel"]
+    (tmp_path / "pernav" / "play").mkdir()
+    (tmp_path / "pernav" / "play" / "p.py").write_text("from pernav.diagnostics import stats\nimport pernav.cli\n")
+    assert upward_imports(tmp_path)[3:] == ["pernav/play/p.py:1: play -> pernav.diagnostics",
+                                            "pernav/play/p.py:2: play -> pernav.cli"]
+    (tmp_path / "pernav" / "cli.py").write_text("from pernav.bench import main\nfrom pernav.study import run_study\n")
+    assert len(upward_imports(tmp_path)) == 5  # the entry points import one another and every layer
+
+
+def test_no_module_imports_from_a_higher_layer() -> None:
+    assert {p.name for p in (ROOT / "pernav").iterdir() if (p / "__init__.py").exists()} <= set(LAYERS), \
+        "place the new package in LAYERS"
+    up = upward_imports(ROOT)
+    assert not up, "move what these need down to their layer (or the import up to the caller):\n" + "\n".join(up)
+
+
+# ----- names are imported from the module that defines them, not through one that imports them -------------------
+# A package's __init__ is its public API, and these modules gather the public names of their package for readers
+# (docs/components.md imports from them); pernav itself imports from where a name is defined.
+_GATHERING = ("pernav.planner.navigation", "pernav.diagnostics.stats")
+
+
+def defined_names(tree: ast.Module) -> set[str]:
+    """The names a module defines at its top level (functions, classes, assignments), not those it imports."""
+    names = set()
+    for statement in tree.body:
+        nested = isinstance(statement, ast.If | ast.Try | ast.For | ast.With)
+        for node in ast.walk(statement) if nested else [statement]:
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
+                names.add(node.name)
+            elif isinstance(node, ast.Assign | ast.AnnAssign | ast.For):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                names |= {n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name)}
+    return names
+
+
+def lazy_exports_of(tree: ast.Module) -> dict[str, str]:
+    """``name -> module`` of the lazy exports a package's ``__init__`` declares: its top-level dicts (literals or
+    comprehensions of literals) whose values are pernav modules."""
+    exports: dict[str, str] = {}
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Dict | ast.DictComp):
+            value = eval(compile(ast.Expression(node.value), "<exports>", "eval"), {})  # data only: strings, tuples
+            exports |= {k: v for k, v in value.items() if isinstance(v, str) and _MODULE.fullmatch(v)}
+    return exports
+
+
+def imports_through(root: Path, folders: tuple[str, ...]) -> list[str]:
+    """``file:line: name via module`` for each name imported (at any depth) from a pernav module that does not
+    define it, and for each lazy export of a package that names such a module. A package (its public API) may be
+    imported from; the gathering modules too, from outside pernav."""
+    trees = {module_name(root, p): ast.parse(p.read_text(encoding="utf-8")) for p in (root / "pernav").rglob("*.py")}
+    packages = {module_name(root, p) for p in (root / "pernav").rglob("__init__.py")}
+    defined = {m: defined_names(tree) for m, tree in trees.items()}
+    found = []
+    for folder in folders:
+        for path in sorted((root / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            pairs = [(node.lineno, node.module, alias.name) for node in ast.walk(tree)
+                     if isinstance(node, ast.ImportFrom) and node.module in trees for alias in node.names]
+            if module_name(root, path) in packages:
+                pairs += [(1, module, name) for name, module in lazy_exports_of(tree).items() if module in trees]
+            found += [f"{path.relative_to(root)}:{line}: {name} via {module}" for line, module, name in pairs
+                      if module not in packages and name not in defined[module] and f"{module}.{name}" not in trees
+                      and not (module in _GATHERING and folder != "pernav")]
+    return found
+
+
+def test_the_import_reader_finds_names_imported_through_another_module(tmp_path: Path) -> None:
+    (tmp_path / "pernav" / "a").mkdir(parents=True)
+    (tmp_path / "pernav" / "a" / "__init__.py").write_text("X = {'Town': 'pernav.a.m', 'f': 'pernav.a.m'}\n")
+    (tmp_path / "pernav" / "a" / "n.py").write_text("def f():\n    pass\n")
+    (tmp_path / "pernav" / "a" / "m.py").write_text("from pernav.a.n import f\n\n\nclass Town:\n    pass\n")
+    (tmp_path / "tests").mkdir()
+    (tmp_path / "tests" / "t.py").write_text("from pernav.a.m import Town, f\n\n\ndef g():\n"
+                                             "    from pernav.a import Town, f\n    from pernav.a.m import f\n")
+    assert imports_through(tmp_path, ("pernav", "tests")) == [
+        "pernav/a/__init__.py:1: f via pernav.a.m", "tests/t.py:1: f via pernav.a.m", "tests/t.py:6: f via pernav.a.m"]
+
+
+def test_names_are_imported_from_the_module_that_defines_them() -> None:
+    through = imports_through(ROOT, ("pernav", "tests", "recipes", "docs/research/scripts"))
+    assert not through, "import these from the module that defines them:\n" + "\n".join(through)
