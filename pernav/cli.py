@@ -29,10 +29,10 @@ from typing import Any
 from pernav.planner.factory import parse_planner_options
 from pernav.study.config import BELIEF_DEFAULTS, COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS, learner_options
 from pernav.study.errors import CheckpointError
-from pernav.world.constants import PLAYBACK
+from pernav.world.constants import PLAYBACK, TOWN_NAMES
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
 from pernav.world.routing import RouteError
-from pernav.world.towns import TOWN_NAMES, TownError
+from pernav.world.towns import TownError
 
 # pernav.bench.BENCHMARKS (not imported here: it is slow)
 BENCH_CHOICES = ("sim", "planner", "train", "play", "timing", "belief")

@@ -148,7 +148,7 @@ def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
                 methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
     """The sweep look's figures (:data:`SWEEP_TARGETS`): every method's Spearman of mean "turn" lead with reaction
     time per town and seed, and the learner's cost at the quick end and gap closed at the slow end."""
-    from pernav.diagnostics.stats import gap_closed, paired_ratio
+    from pernav.study.stats import gap_closed, paired_ratio
 
     pairs = episodes(results)
     online = [e for e in sweep_schedule() if e.phase == "online"]
@@ -190,7 +190,7 @@ def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
 def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict[str, Any]:
     """The personalization curve (:data:`REPEAT_TARGETS`): per drive *k* of the same driver, the slow drivers' gap
     closed, the quick drivers' cost over explore's and "turn" lead minus explore's, and the belief's interval."""
-    from pernav.diagnostics.stats import gap_closed, paired_difference, paired_ratio
+    from pernav.study.stats import gap_closed, paired_difference, paired_ratio
 
     pairs = episodes(results)
     cells = classify(repeat_schedule(), ["Town1", "Town3"])
@@ -266,7 +266,7 @@ def plot_sweep_leads(results: list[dict[str, Any]], path: str,
                      methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
     """The sweep's "turn" lead per method against the driver's reaction time (mean over routes and seeds with its
     95 % bootstrap CI), one panel per town; returns the plotted points."""
-    from pernav.diagnostics.stats import bootstrap_ci
+    from pernav.study.stats import bootstrap_ci
 
     pairs = episodes(results)
     towns = sorted({k[1] for k in pairs})

@@ -166,7 +166,7 @@ def judge_split(results: list[dict[str, Any]], learner: str = "belief", baseline
     split cells, and the quick half's "turn" lead against explore's and every cell against ``baseline``."""
     import numpy as np
 
-    from pernav.diagnostics.stats import paired_difference, paired_ratio
+    from pernav.study.stats import paired_difference, paired_ratio
 
     cells = classify(split_schedule(), ["Town1", "Town3"])
     out = judge(results, learner, cells)
@@ -238,7 +238,7 @@ def judge(results: list[dict[str, Any]], learner: str = "timing", cells: list[di
     the comparison with ``adapt`` and ``sysid`` where they drove the same episodes (95 % paired bootstrap CIs)."""
     import numpy as np
 
-    from pernav.diagnostics.stats import gap_closed, paired_difference, paired_ratio
+    from pernav.study.stats import gap_closed, paired_difference, paired_ratio
 
     late = {(c["town"], c["round"]): c["late"] for c in (cells or classify(personal_schedule(), ["Town1", "Town3"]))}
     pairs = episodes(results)
@@ -336,7 +336,7 @@ def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from pernav.diagnostics.stats import bootstrap_ci
+    from pernav.study.stats import bootstrap_ci
 
     pairs = episodes(results)
     towns = sorted({k[1] for k in pairs})

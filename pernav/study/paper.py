@@ -33,9 +33,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from pernav.diagnostics.stats import paired_difference
 from pernav.study.config import METHODS
 from pernav.study.report import COLORS, running_mean
+from pernav.study.stats import paired_difference
 
 __all__ = ["PAPER_ROUNDS", "PAPER_TABLE1", "Claim", "PaperError", "claims", "compact", "expand", "main", "merge",
            "paper_markdown", "plot_fig3", "plot_regret"]

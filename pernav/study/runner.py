@@ -46,9 +46,8 @@ from pernav.model.timing import TARGETS as TIMING_TARGETS
 from pernav.model.timing import TimingModel, timing_features
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
-from pernav.study.checkpoints import final_models, load_checkpoint, save_checkpoint
+from pernav.study.checkpoints import load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
-from pernav.study.errors import CheckpointError
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
 from pernav.trainer.answers import fit_belief, labelled_drives
@@ -58,7 +57,7 @@ from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
 from pernav.world.drivers import Population, resolve
 
-__all__ = ["CheckpointError", "final_models", "run_town"]  # final_models: from pernav.study.checkpoints
+__all__ = ["run_town"]
 
 log = logging.getLogger("pernav.study")
 
