@@ -531,7 +531,7 @@ def _study(args: argparse.Namespace) -> None:
     if args.collect is not None:
         cfg.collect = args.collect
     if args.tau_policy is not None:
-        cfg.tau = args.tau_policy
+        cfg.tau_policy = args.tau_policy
     if args.calibration is not None:
         cfg.calibration = args.calibration
     try:
@@ -544,7 +544,7 @@ def _study(args: argparse.Namespace) -> None:
 
     print(collision_table(results))
     print(f"results: {Path(args.out) / 'results.json'}, report: {Path(args.out) / 'report.md'} "
-          f"({results['timing']['wall_s']} s)")
+          f"({results['wall_time']['wall_s']} s)")
 
 
 def _judge(args: argparse.Namespace) -> None:

@@ -11,7 +11,8 @@ the true and the predicted divergence, and the mean absolute error, for:
 
 * ``meta``: adapt's final meta model from a study (``--study DIR``, its Town checkpoint);
 * ``adapted``: that model after one adaptation step on one trajectory of the driver (as in the study): an explore
-  drive, or with ``--tau retimed`` a drive with explore's prompts re-timed at random (the study's ``tau`` option).
+  drive, or with ``--tau-policy retimed`` a drive with explore's prompts re-timed at random (the study's
+  ``tau_policy`` option).
   The step is the study's own test-time ``U`` (its ``alpha``, ``L``, gradient clip and backtracking, from its
   study.json; a model with a context adapts only it); ``--adapt-step fixed``: the study's ``alpha`` as a fixed step,
   without clip or backtracking (how the model checks in docs/research/findings.md were made);
@@ -23,7 +24,7 @@ Run (after ``make study`` or ``pernav study --preset default --out runs/default`
 takes the same options):
 OMP_WAIT_POLICY=PASSIVE .venv/bin/python -m pernav.diagnostics.model_check --study runs/default [--town Town1]
 [--json runs/model_check/model_check_Town1.json] [--plot runs/model_check/divergence_Town1.png]
-[--tau retimed --calibration 0 --personal-updates 100]  (the models of a study run with those options)
+[--tau-policy retimed --calibration 0 --personal-updates 100]  (the models of a study run with those options)
 """
 
 from __future__ import annotations
@@ -122,8 +123,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     ap.add_argument("--drivers", nargs="*", default=list(PANEL))
     ap.add_argument("--json", default="model_check.json")
     ap.add_argument("--plot", default=None, help="scatter of true vs predicted divergence (png)")
-    ap.add_argument("--tau", choices=["explore", "retimed"], default="explore",
-                    help="the adaptation trajectory's policy, as the study's tau option (default explore)")
+    ap.add_argument("--tau-policy", dest="tau_policy", choices=["explore", "retimed"], default="explore",
+                    help="the adaptation trajectory's policy, as the study's tau_policy option (default explore)")
     ap.add_argument("--calibration", type=int, default=4, help="re-timed drives of the personal model (default 4)")
     ap.add_argument("--personal-updates", type=int, default=100, help="updates of the personal model (default 100)")
     ap.add_argument("--adapt-step", choices=["study", "fixed"], default="study",
@@ -141,8 +142,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         step.update(max_norm=saved.get("max_grad_norm"), backtrack=saved.get("backtrack"))
     rows, pooled = {}, {}
     for driver in args.drivers:
-        policy = RetimedExplore(seed=77) if args.tau == "retimed" else explore_module()
-        tau = drive(driver_env(driver, args.town, 7, 77, meta.K, PLANNING if args.tau == "retimed" else None), policy)
+        retimed = args.tau_policy == "retimed"
+        policy = RetimedExplore(seed=77) if retimed else explore_module()
+        tau = drive(driver_env(driver, args.town, 7, 77, meta.K, PLANNING if retimed else None), policy)
         params, adapted = [], []
         for state in members:  # U(P, tau) of every member, as the study adapts
             meta.load_state_dict(state)

@@ -1,9 +1,9 @@
 """A town's checkpoints: writing one after every entry, resuming from it, and reading a finished study's models.
 
-A checkpoint is a folder ``checkpoints/<town>/entry_NNN`` (``state.pt``: the run's state and every learner's
-trainer; ``buffers_<learner>/``: its replay buffers) and ``manifest.json``, which names the folder and every file's
-SHA-256. The folder is written under a temporary name and the manifest replaced in one ``os.replace``, so a study
-killed at any moment leaves the previous checkpoint whole.
+A checkpoint is a folder ``checkpoints/<town>/entry_NNN`` (``state.pt``: the run's :class:`RunState` as a plain
+dict and every learner's trainer; ``buffers_<learner>/``: its replay buffers) and ``manifest.json``, which names the
+folder and every file's SHA-256. The folder is written under a temporary name and the manifest replaced in one
+``os.replace``, so a study killed at any moment leaves the previous checkpoint whole.
 
 Example:
     >>> model, members = final_models("runs/smoke", "Town1")  # doctest: +SKIP
@@ -16,8 +16,9 @@ import hashlib
 import json
 import os
 import shutil
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import torch
 
@@ -25,7 +26,44 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
 
-__all__ = ["file_sha256", "final_belief", "final_models", "load_checkpoint", "save_checkpoint"]
+__all__ = ["RunState", "file_sha256", "final_belief", "final_models", "load_checkpoint", "save_checkpoint"]
+
+
+@dataclass
+class RunState:
+    """What one town's run has done so far, beside its learners: what a checkpoint keeps to resume it.
+
+    Per-round dicts are keyed by the entry's label. Saved as a plain dict (:meth:`to_dict`), so that a checkpoint
+    does not depend on where this class lives, and read back by :meth:`from_dict`, which also reads the state of a
+    checkpoint written before the rename of ``timing`` (the rounds' wall time) to ``wall_time``.
+    """
+
+    next: int = 0  # the index of the next entry to run
+    results: list[dict[str, Any]] = field(default_factory=list)  # per entry run: label, phase, methods' figures
+    warm: dict[str, Any] | None = None  # every learner's trainer state after the warm start (Eq. 1)
+    online_losses: dict[str, float] = field(default_factory=dict)  # adapt's loss on the round's data, adapted
+    unadapted_losses: dict[str, float] = field(default_factory=dict)  # ... and without adaptation
+    fixed_step_losses: dict[str, float] = field(default_factory=dict)  # ... adapted with the paper's fixed step
+    wall_time: dict[str, float] = field(default_factory=dict)  # s each round took, wall clock
+    profile: dict[str, float] = field(default_factory=dict)  # s of wall clock per phase (collection_s, ...)
+    timing_model: dict[str, Any] | None = None  # the timing learner's state dict, fitted offline
+    timing_beliefs: dict[str, dict[str, float]] = field(default_factory=dict)  # its belief about each round's user
+    belief_model: dict[str, Any] | None = None  # the belief learner's {"detector", "prior"} state dicts
+    belief_posteriors: dict[str, dict[str, Any]] = field(default_factory=dict)  # per user (profile and context)
+    belief_rounds: dict[str, dict[str, Any]] = field(default_factory=dict)  # its posterior after each round's tau
+    hindsight: dict[str, Any] | None = None  # the hindsight model's evaluations and losses, once trained
+
+    #: keys of checkpoints written before a field was renamed -> the field
+    RENAMED: ClassVar[dict[str, str]] = {"timing": "wall_time"}
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields as a plain dict (the objects themselves, not copies)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> RunState:
+        """The state :meth:`to_dict` gave, or an older checkpoint's (a field it lacks takes its default)."""
+        return cls(**{cls.RENAMED.get(k, k): v for k, v in data.items()})
 
 
 def file_sha256(path: str | Path) -> str:
@@ -37,7 +75,7 @@ def file_sha256(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: dict[str, Any]) -> None:
+def save_checkpoint(folder: Path, index: int, state: RunState, learners: dict[str, Any]) -> None:
     """Write ``folder/entry_{index}`` (``state`` and every learner's ``state()`` and ``buffers``, as
     :class:`~pernav.study.runner.Learner` has them), then atomically point ``folder/manifest.json`` at it."""
     folder.mkdir(parents=True, exist_ok=True)
@@ -45,7 +83,7 @@ def save_checkpoint(folder: Path, index: int, state: dict[str, Any], learners: d
     tmp = folder / f".tmp_entry_{index:03d}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
-    torch.save({"state": state, "learners": {k: v.state() for k, v in learners.items()}}, tmp / "state.pt")
+    torch.save({"state": state.to_dict(), "learners": {k: v.state() for k, v in learners.items()}}, tmp / "state.pt")
     for name, learner in learners.items():
         learner.buffers.save(tmp / f"buffers_{name}")
     files = {str(p.relative_to(tmp)): file_sha256(p) for p in sorted(tmp.rglob("*")) if p.is_file()}
@@ -83,7 +121,7 @@ def _verified(folder: Path, only: str | None = None) -> Path | None:
     return ckpt
 
 
-def load_checkpoint(folder: Path, learners: dict[str, Any]) -> dict[str, Any] | None:
+def load_checkpoint(folder: Path, learners: dict[str, Any]) -> RunState | None:
     """Restore ``learners`` (their trainers and buffers) from the manifest's checkpoint and return the run's
     state; ``None`` when there is none. Verifies every file's checksum first."""
     ckpt = _verified(folder)
@@ -94,7 +132,7 @@ def load_checkpoint(folder: Path, learners: dict[str, Any]) -> dict[str, Any] | 
         learner.trainer.load_state_dict(data["learners"][name])
         loaded = RoundBuffers.load(ckpt / f"buffers_{name}")
         learner.buffers.__dict__.update(loaded.__dict__)
-    return data["state"]
+    return RunState.from_dict(data["state"])
 
 
 def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[DynamicsModel, list[dict]]:
@@ -123,7 +161,7 @@ def final_belief(study: str | Path, town: str) -> dict[str, Any]:
     ckpt = _verified(Path(study) / "checkpoints" / town, only="state.pt")
     if ckpt is None:
         raise CheckpointError(f"no {town} checkpoint in {str(study)!r} (run the study first)")
-    state = torch.load(ckpt / "state.pt", weights_only=False)["state"]
-    if "belief_model" not in state:
+    state = RunState.from_dict(torch.load(ckpt / "state.pt", weights_only=False)["state"])
+    if state.belief_model is None:
         raise CheckpointError(f"the study in {str(study)!r} did not run the belief learner (add it to its methods)")
-    return state["belief_model"]
+    return state.belief_model

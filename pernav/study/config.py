@@ -21,11 +21,11 @@ from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.constants import TOWN_NAMES
 
-__all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "TIMING_DEFAULTS", "PresetError", "StudyConfig",
-           "learner_options", "preset"]
+__all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "RENAMED_OPTIONS", "TIMING_DEFAULTS", "PresetError",
+           "StudyConfig", "current_names", "learner_options", "preset"]
 
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
-COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau choices
+COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau_policy choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
 # the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
 # ridge penalty, the residual SDs its belief adds to the predicted mean, the gate (s earlier than explore), and the
@@ -36,6 +36,9 @@ TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile":
 # town, the detector's timing noise (log s) and outlier share in the likelihood, the posterior SDs above the mean that
 # the prompts are timed for, and the guard (as the timing learner's)
 BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 96, "noise": 0.15, "outlier": 0.3, "quantile": 1.0, "guard": 1}
+# options renamed since configurations were saved (presets, study.json, results.json's config): old name -> new.
+# ``tau`` named the policy of the adaptation drive; tau is the drive itself
+RENAMED_OPTIONS = {"tau": "tau_policy"}
 
 
 class PresetError(ValueError):
@@ -80,12 +83,12 @@ class StudyConfig:
     planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
     # the learners' non-MPC data: "explore" (the paper) or "retimed" (explore with its prompts re-timed at
     # random, pernav.planner.RetimedExplore, so the data identify what a prompt's timing does). The tau
-    # trajectories (unless tau is "retimed") and every evaluation stay pure explore either way.
+    # trajectories (unless tau_policy is "retimed") and every evaluation stay pure explore either way.
     collect: str = "explore"
     # the policy that drives each round's adaptation trajectory tau (paper: "one trajectory with the exploration
     # policy"): "explore" (the rule itself) or "retimed" (RetimedExplore, so tau shows this driver's answer to a
     # prompt's timing, which one explore drive cannot). Every evaluation episode stays pure explore either way
-    tau: str = "explore"
+    tau_policy: str = "explore"
     # re-timed drives (RetimedExplore) of each online round's user before its evaluation, beside tau: data of
     # this user's answers to a prompt's timing (train.personal_updates adapts on them; 0: none, the paper)
     calibration: int = 0
@@ -113,8 +116,8 @@ class StudyConfig:
             raise PresetError(f"unknown method {unknown[0]!r}; choose from {', '.join(METHODS)}")
         if self.collect not in COLLECT:
             raise PresetError(f"collect must be one of {', '.join(COLLECT)}, got {self.collect!r}")
-        if self.tau not in COLLECT:
-            raise PresetError(f"tau must be one of {', '.join(COLLECT)}, got {self.tau!r}")
+        if self.tau_policy not in COLLECT:
+            raise PresetError(f"tau_policy must be one of {', '.join(COLLECT)}, got {self.tau_policy!r}")
         if not 1 <= self.routes <= 10:
             raise PresetError(f"routes must be in [1, 10], got {self.routes}")
         if self.rollouts < 0 or self.offline_trajectories < 1:
@@ -172,10 +175,19 @@ def _schedule(spec: Any, name: str) -> list[Entry]:
     return SCHEDULES[spec]()
 
 
+def current_names(saved: dict[str, Any]) -> dict[str, Any]:
+    """A saved configuration's top-level options under today's names (:data:`RENAMED_OPTIONS`), in their order.
+
+    >>> current_names({"collect": "explore", "tau": "retimed"})
+    {'collect': 'explore', 'tau_policy': 'retimed'}
+    """
+    return {RENAMED_OPTIONS.get(key, key): value for key, value in saved.items()}
+
+
 def _preset_fields(name: str) -> dict[str, Any]:
     """The preset's fields, its ``base`` preset's first (a preset's ``train``, ``timing`` and ``belief`` add to the
     base's)."""
-    fields = yaml.safe_load((PRESETS_DIR / f"{name}.yaml").read_text()) or {}
+    fields = current_names(yaml.safe_load((PRESETS_DIR / f"{name}.yaml").read_text()) or {})
     base = fields.pop("base", None)
     if base is None:
         return fields

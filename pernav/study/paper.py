@@ -2,7 +2,7 @@
 
 The paper study runs town by town (``pernav study --preset paper --towns TownN --out runs/paper/TownN --resume``).
 Each finished town is *compacted* into ``docs/paper/results/<Town>.json`` (what the table, figures and claims need:
-config, rounds with per-episode columns, regret, timing; tens of kB) and committed; ``--build`` rebuilds the
+config, rounds with per-episode columns, regret, wall time; tens of kB) and committed; ``--build`` rebuilds the
 generated section of docs/paper.md and its two figures from those files alone. A town without a file is shown as
 "not yet run", never filled in.
 
@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from pernav.study.config import METHODS
-from pernav.study.report import COLORS, running_mean
+from pernav.study.report import COLORS, running_mean, wall_time
 from pernav.study.stats import paired_difference
 
 __all__ = ["PAPER_ROUNDS", "PAPER_TABLE1", "Claim", "PaperError", "claims", "compact", "expand", "main", "merge",
@@ -115,10 +115,10 @@ def compact(results: dict[str, Any], town: str | None = None) -> dict[str, Any]:
                 "episodes": {k: [e.get(k) for e in f["episodes"]] for k in EPISODE_KEYS
                              if any(k in e for e in f["episodes"])}}
             for m, f in methods.items()}})
-    timing = results.get("timing", {})
+    wall = wall_time(results)
     return {"format": FORMAT, "town": town, "config": results["config"], "provenance": _provenance(),
-            "timing": {"wall_s": timing.get("wall_s"), "workers": timing.get("workers"),
-                       "rounds_s": timing.get("towns", {}).get(town), "profile": timing.get("profile", {}).get(town)},
+            "wall_time": {"wall_s": wall.get("wall_s"), "workers": wall.get("workers"),
+                          "rounds_s": wall.get("towns", {}).get(town), "profile": wall.get("profile", {}).get(town)},
             "rounds": rounds, "regret": results.get("regret", {}).get(town),
             "diagnostics": results.get("diagnostics", {}).get(town)}
 
@@ -352,13 +352,13 @@ def _ci(x: dict[str, float] | None, digits: int) -> str:
 
 
 def _provenance_line(name: str, t: dict[str, Any]) -> str:
-    cfg, prov, timing = t["config"], t.get("provenance") or {}, t.get("timing") or {}
-    rounds_s = timing.get("rounds_s") or {}
+    cfg, prov, wall = t["config"], t.get("provenance") or {}, wall_time(t)
+    rounds_s = wall.get("rounds_s") or {}
     commit = (prov.get("compacted_at_commit") or "?")[:10]
     return (f"Preset `{cfg.get('preset')}`, seed {cfg.get('seed')}, {len(_online(t))} online rounds (paper: "
             f"{PAPER_ROUNDS.get(name, '?')}), {cfg.get('routes')} routes, {cfg.get('rollouts')} rollouts; "
-            f"rounds' wall time {sum(rounds_s.values()) / 60:.0f} min (last run {timing.get('wall_s')} s, "
-            f"{timing.get('workers')} workers); compacted at commit {commit} on {prov.get('cpus')} CPUs "
+            f"rounds' wall time {sum(rounds_s.values()) / 60:.0f} min (last run {wall.get('wall_s')} s, "
+            f"{wall.get('workers')} workers); compacted at commit {commit} on {prov.get('cpus')} CPUs "
             f"({prov.get('machine')}).")
 
 

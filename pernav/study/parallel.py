@@ -159,5 +159,5 @@ def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
     policy = make_policy(job)
     belief = job.params if job.policy == "belief" else None
     trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions, belief)
-    timing = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
-    return {"route": job.route, **episode_metrics(trajectory), "_timing": timing}
+    wall_time = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
+    return {"route": job.route, **episode_metrics(trajectory), "_wall_time": wall_time}

@@ -7,7 +7,7 @@ from typing import Any
 
 from pernav.study.config import METHODS
 
-__all__ = ["collision_table", "running_mean", "write_report"]
+__all__ = ["collision_table", "running_mean", "wall_time", "write_report"]
 
 COLORS = {"explore": "#7f7f7f", "sysid": "#1f77b4", "adapt": "#d62728", "adapt_speed": "#ff7f0e",
           "hindsight": "#2ca02c", "oracle": "#9467bd"}
@@ -16,6 +16,17 @@ COLORS = {"explore": "#7f7f7f", "sysid": "#1f77b4", "adapt": "#d62728", "adapt_s
 def _online(results: dict[str, Any], town: str) -> list[dict[str, Any]]:
     # a round of recorded drives has no episodes (docs/study.md, "Recorded drives in a schedule")
     return [it for it in results["iterations"] if it["phase"] == "online" and it["towns"].get(town)]
+
+
+def wall_time(results: dict[str, Any]) -> dict[str, Any]:
+    """The wall-time entry of a results.json or a compact paper town (``wall_s`` of the whole run, ``workers``, per
+    town the rounds' seconds and the phases' ``profile``); files written before its rename hold it as ``timing``
+    (a name that now means the timing learner alone). Empty when absent.
+
+    >>> wall_time({"timing": {"wall_s": 60.0}}), wall_time({"wall_time": {"wall_s": 61.0}}), wall_time({})
+    ({'wall_s': 60.0}, {'wall_s': 61.0}, {})
+    """
+    return results.get("wall_time", results.get("timing")) or {}
 
 
 def running_mean(values: list[float]) -> list[float]:
@@ -166,7 +177,7 @@ def write_report(results: dict[str, Any], out: str | Path) -> Path:
     figures.mkdir(parents=True, exist_ok=True)
     lines = [f"# pernav study: preset `{results['config']['preset']}`", "",
              f"Towns: {', '.join(results['summary'])}; seed {results['config']['seed']}; "
-             f"wall time {results.get('timing', {}).get('wall_s', '?')} s.", "",
+             f"wall time {wall_time(results).get('wall_s', '?')} s.", "",
              "## Collisions per route set (mean (std) over online rounds), tracking cost and completion", "",
              collision_table(results), "", "## Paired comparison with explore (all online rounds' episodes, 95 % "
              "bootstrap CIs)", "", comparison_table(results["comparison"]) if "comparison" in results else "–", "",

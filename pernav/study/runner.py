@@ -3,7 +3,7 @@
 Per town: the offline entries are driven by the explore policy into every learner's data stream; the
 learners (``sysid``, ``adapt``: 7 actions, ``adapt_speed``: 21) are warm-started by maximum likelihood
 (Eq. 1). Then, per online entry ``t``: one trajectory ``tau_t`` of the round's user (by explore, or with
-``tau: retimed`` by explore re-timed at random; each offline entry's first drive is its tau, driven the same
+``tau_policy: retimed`` by explore re-timed at random; each offline entry's first drive is its tau, driven the same
 way) and ``calibration`` re-timed drives of the user, if configured; adapt ``U(P_t, tau_t)`` (or, with
 ``train.personal_updates``, that many maximum-likelihood updates from ``P_t`` on the user's drives); evaluate
 every method on the evaluation routes with that round's user (same episode seeds for every method);
@@ -46,7 +46,7 @@ from pernav.model.timing import TARGETS as TIMING_TARGETS
 from pernav.model.timing import TimingModel, timing_features
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
-from pernav.study.checkpoints import load_checkpoint, save_checkpoint
+from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
@@ -106,8 +106,9 @@ def _collector(cfg: StudyConfig, seed: int) -> Any:
 
 
 def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
-    """The policy of a round's adaptation trajectory tau (``cfg.tau``): explore, or explore re-timed at random."""
-    return RetimedExplore(seed=derive_seed(seed, "tau")) if cfg.tau == "retimed" else explore_module()
+    """The policy of a round's adaptation trajectory tau (``cfg.tau_policy``): explore, or explore re-timed at
+    random."""
+    return RetimedExplore(seed=derive_seed(seed, "tau")) if cfg.tau_policy == "retimed" else explore_module()
 
 
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
@@ -146,10 +147,10 @@ def _summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _strip_timing(metrics: list[dict[str, Any]], profile: dict[str, float], prefix: str) -> list[dict[str, Any]]:
+def _strip_wall_time(metrics: list[dict[str, Any]], profile: dict[str, float], prefix: str) -> list[dict[str, Any]]:
     """Move the episodes' wall-time figures into ``profile`` (they must not enter the results)."""
     for m in metrics:
-        t = m.pop("_timing", {})
+        t = m.pop("_wall_time", {})
         profile[f"{prefix}_episodes_s"] = profile.get(f"{prefix}_episodes_s", 0.0) + t.get("episode_s", 0.0)
         profile[f"{prefix}_planning_s"] = profile.get(f"{prefix}_planning_s", 0.0) + t.get("planning_s", 0.0)
     return metrics
@@ -176,13 +177,13 @@ class _Town:
     cfg: StudyConfig
     town: str
     learners: dict[str, Learner]
-    state: dict[str, Any]
+    state: RunState
     executor: Any
     first_online: int
 
     @property
     def profile(self) -> dict[str, float]:
-        return self.state["profile"]
+        return self.state.profile
 
     def seed(self, *parts: Any) -> int:
         return derive_seed(self.cfg.seed, self.town, *parts)
@@ -201,17 +202,14 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     entries = cfg.entries_for(town)
     names = [m for m in LEARNERS if m in cfg.methods or (m == "adapt" and "hindsight" in cfg.methods)]
     learners = {name: Learner(name, cfg, town) for name in names}
-    state = load_checkpoint(ckpt_dir, learners) if resume else None
-    if state is None:
-        state = {"next": 0, "results": [], "warm": None, "online_losses": {}, "unadapted_losses": {}, "timing": {},
-                 "profile": {}}
+    state = (load_checkpoint(ckpt_dir, learners) if resume else None) or RunState()
     run = _Town(cfg, town, learners, state, executor or SerialExecutor(),
                 next(i for i, e in enumerate(entries) if e.phase == "online"))
     from torchrl.record.loggers import CSVLogger
 
     logger = CSVLogger(exp_name=town, log_dir=str(out / "logs"))
-    bar = tqdm(total=len(entries), initial=state["next"], desc=f"{town} rounds", position=position, leave=False)
-    for index in range(state["next"], len(entries)):
+    bar = tqdm(total=len(entries), initial=state.next, desc=f"{town} rounds", position=position, leave=False)
+    for index in range(state.next, len(entries)):
         entry = entries[index]
         t0 = time.perf_counter()
         rng = random.Random(run.seed(entry.label))
@@ -225,17 +223,17 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
             _recorded_round(run, entry, index)
         else:
             _online_round(run, entry, index, rng, record)
-        state["timing"][entry.label] = round(time.perf_counter() - t0, 2)
-        state["results"].append(record)
+        state.wall_time[entry.label] = round(time.perf_counter() - t0, 2)
+        state.results.append(record)
         _log(logger, index, record)
-        state["next"] = index + 1
+        state.next = index + 1
         with _Timer(run.profile, "checkpoint_s"):
             save_checkpoint(ckpt_dir, index, state, learners)
         bar.update(1)
     bar.close()
-    if "hindsight" in cfg.methods and "hindsight" not in state:
-        state["hindsight"] = _hindsight(cfg, town, entries, learners["adapt"], state, list(range(cfg.routes)),
-                                        run.executor)
+    if "hindsight" in cfg.methods and state.hindsight is None:
+        state.hindsight = _hindsight(cfg, town, entries, learners["adapt"], state, list(range(cfg.routes)),
+                                     run.executor)
         save_checkpoint(ckpt_dir, len(entries), state, learners)
     _merge_hindsight(state)
     return _town_result(run)
@@ -252,11 +250,11 @@ def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, rec
             _warm_start(cfg, run.learners)
         if "timing" in cfg.methods:
             with _Timer(run.profile, "timing_offline_s"):
-                state["timing_model"] = _fit_timing(cfg, run.town).state_dict()
+                state.timing_model = _fit_timing(cfg, run.town).state_dict()
         if "belief" in cfg.methods:
             with _Timer(run.profile, "belief_offline_s"):
-                state["belief_model"] = _fit_belief(cfg, run.town)
-        state["warm"] = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
+                state.belief_model = _fit_belief(cfg, run.town)
+        state.warm = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
 
 
 def _recorded_round(run: _Town, entry: Entry, index: int) -> None:
@@ -290,8 +288,8 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
         adapted = {name: learner.adapted(index, cfg, run.seed(entry.label, name, "personal"))
                    for name, learner in learners.items()}
         if "timing" in cfg.methods:  # the timing learner's belief about this round's user, from tau alone
-            adapted["timing"] = TimingModel().load_state_dict(state["timing_model"]).belief(tau)
-            state.setdefault("timing_beliefs", {})[entry.label] = adapted["timing"]
+            adapted["timing"] = TimingModel().load_state_dict(state.timing_model).belief(tau)
+            state.timing_beliefs[entry.label] = adapted["timing"]
         if "belief" in cfg.methods:  # the posterior about this round's user: its earlier rounds' taus and this one
             adapted["belief"] = _read_tau(cfg, state, entry, tau)
     _evaluate(run, entry, adapted, record)
@@ -310,7 +308,7 @@ def _evaluate(run: _Town, entry: Entry, adapted: dict[str, Any], record: dict[st
             for method in methods for route in range(run.cfg.routes)]
     with _Timer(run.profile, "evaluation_s"):
         metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} episodes")
-    _strip_timing(metrics, run.profile, "evaluation")
+    _strip_wall_time(metrics, run.profile, "evaluation")
     for method in methods:
         record["methods"][method] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
                                                 if j.policy_name == method])
@@ -338,15 +336,15 @@ def _town_result(run: _Town) -> dict[str, Any]:
     state = run.state
     diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
                    for name, learner in run.learners.items()}
-    if "timing_beliefs" in state:
-        diagnostics["timing"] = {"beliefs": state["timing_beliefs"]}
-    if "belief_rounds" in state:
-        diagnostics["belief"] = {"beliefs": state["belief_rounds"]}
-    return {"town": run.town, "results": state["results"], "online_losses": state["online_losses"],
-            "unadapted_losses": state["unadapted_losses"], "fixed_step_losses": state.get("fixed_step_losses", {}),
+    if state.timing_beliefs:  # the timing learner ran online
+        diagnostics["timing"] = {"beliefs": state.timing_beliefs}
+    if state.belief_rounds:
+        diagnostics["belief"] = {"beliefs": state.belief_rounds}
+    return {"town": run.town, "results": state.results, "online_losses": state.online_losses,
+            "unadapted_losses": state.unadapted_losses, "fixed_step_losses": state.fixed_step_losses,
             "diagnostics": diagnostics,
-            "hindsight_losses": state.get("hindsight", {}).get("losses", {}), "timing": state["timing"],
-            "profile": {k: round(v, 2) for k, v in state["profile"].items()}}
+            "hindsight_losses": (state.hindsight or {}).get("losses", {}), "wall_time": state.wall_time,
+            "profile": {k: round(v, 2) for k, v in state.profile.items()}}
 
 
 def _collect_offline(cfg: StudyConfig, town: str, entry: Entry, index: int, rng: random.Random,
@@ -377,17 +375,17 @@ def _add_recorded(entry: Entry, town: str, index: int, learners: dict[str, Learn
             learner.add(index, trajectory, tau=(k == 0))
 
 
-def _round_losses(cfg: StudyConfig, state: dict[str, Any], entry: Entry, index: int, learner: Learner,
+def _round_losses(cfg: StudyConfig, state: RunState, entry: Entry, index: int, learner: Learner,
                   adapted: Any) -> None:
     """adapt's held-out loss on the round's data before the round's update, with the parameters it plans with
     (``adapted``: U on tau, or the personal updates; the model is unchanged), without adaptation and, where U
     backtracks, with the paper's fixed step (the model-loss regret and the adaptation check)."""
     trainer = learner.trainer
-    state["online_losses"][entry.label] = trainer.round_loss(index, True, adapted)
-    state["unadapted_losses"][entry.label] = trainer.round_loss(index, adapted=False)
+    state.online_losses[entry.label] = trainer.round_loss(index, True, adapted)
+    state.unadapted_losses[entry.label] = trainer.round_loss(index, adapted=False)
     if not cfg.train.personal_updates and cfg.train.backtrack is not None:  # the paper's fixed step too
         fixed = trainer.parameters(learner.buffers.tau(index), adapted=True, alpha=cfg.train.alpha, fixed_step=True)
-        state.setdefault("fixed_step_losses", {})[entry.label] = trainer.round_loss(index, True, fixed)
+        state.fixed_step_losses[entry.label] = trainer.round_loss(index, True, fixed)
 
 
 def _calibrate(cfg: StudyConfig, town: str, entry: Entry, index: int, learners: dict[str, Learner],
@@ -439,19 +437,19 @@ def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
     return {"detector": detector.state_dict(), "prior": prior.state_dict()}
 
 
-def _read_tau(cfg: StudyConfig, state: dict[str, Any], entry: Entry, tau: Any) -> BeliefTracker:
+def _read_tau(cfg: StudyConfig, state: RunState, entry: Entry, tau: Any) -> BeliefTracker:
     """The belief learner's posterior about ``entry``'s user after this round's tau: the prior, or what the earlier
     rounds of the same user left (the belief persists across drives), updated with each of tau's answers."""
-    model, user = state["belief_model"], _user_key(entry)
+    model, user = state.belief_model, _user_key(entry)
     detector = AnswerDetector()
     detector.load_state_dict(model["detector"])
-    posteriors = state.setdefault("belief_posteriors", {})
+    posteriors = state.belief_posteriors
     belief = ReactionBelief.from_state_dict(posteriors.get(user, model["prior"]))
     tracker = BeliefTracker(detector, belief, guard=bool(cfg.belief["guard"]))
     tracker.observe_drive(tau)
     posteriors[user] = tracker.belief.state_dict()
     low, high = tracker.belief.interval(0.9)
-    state.setdefault("belief_rounds", {})[entry.label] = {
+    state.belief_rounds[entry.label] = {
         "reaction_time": round(tracker.belief.mean_reaction(), 4), "interval": [round(low, 4), round(high, 4)],
         "answers": tracker.belief.answers, "acted_on": tracker.fields()}
     return tracker
@@ -479,15 +477,15 @@ def _warm_start(cfg: StudyConfig, learners: dict[str, Learner]) -> None:
             learner.trainer.train(cfg.train.updates, meta=True)
 
 
-def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner: Learner, state: dict[str, Any],
+def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner: Learner, state: RunState,
                routes: list[int], executor: Any) -> dict[str, Any]:
     """The best meta model in hindsight: Eq. 3 over all of adapt's rounds from the same warm start."""
     hind = Learner("adapt", cfg, town)
-    hind.trainer.load_state_dict(state["warm"]["adapt"])
+    hind.trainer.load_state_dict(state.warm["adapt"])
     hind.buffers = adapt_learner.buffers
     hind.trainer.buffers = adapt_learner.buffers
     online = [(i, e) for i, e in enumerate(entries) if e.phase == "online"]
-    with _Timer(state["profile"], "hindsight_training_s"):
+    with _Timer(state.profile, "hindsight_training_s"):
         hind.trainer.train(cfg.train.updates * len(online), meta=True)
     out: dict[str, Any] = {"evaluations": {}, "losses": {}}
     params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
@@ -495,9 +493,9 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
                        "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online if not entry.drives for route in routes]  # recorded rounds: no episodes
-    with _Timer(state["profile"], "hindsight_evaluation_s"):
+    with _Timer(state.profile, "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")
-    _strip_timing(metrics, state["profile"], "hindsight")
+    _strip_wall_time(metrics, state.profile, "hindsight")
     for index, entry in online:
         if not entry.drives:
             out["evaluations"][entry.label] = _summarize([m for j, m in zip(jobs, metrics, strict=True)
@@ -507,9 +505,9 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     return out
 
 
-def _merge_hindsight(state: dict[str, Any]) -> None:
-    evaluations = state.get("hindsight", {}).get("evaluations", {})
-    for record in state["results"]:
+def _merge_hindsight(state: RunState) -> None:
+    evaluations = (state.hindsight or {}).get("evaluations", {})
+    for record in state.results:
         if record["label"] in evaluations:
             record["methods"]["hindsight"] = evaluations[record["label"]]
 

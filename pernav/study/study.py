@@ -4,7 +4,7 @@ Example (the smoke preset, ~1 minute):
     >>> from pernav.study import preset, run_study
     >>> results = run_study(preset("smoke"), "/tmp/pernav-smoke")      # doctest: +SKIP
     >>> sorted(results)                                                 # doctest: +SKIP
-    ['config', 'iterations', 'regret', 'summary', 'timing']
+    ['comparison', 'config', 'diagnostics', 'iterations', 'regret', 'summary', 'wall_time']
 """
 
 from __future__ import annotations
@@ -20,15 +20,12 @@ from pathlib import Path
 from typing import Any
 
 from pernav.study.compare import compare
-from pernav.study.config import BELIEF_DEFAULTS, METHODS, TIMING_DEFAULTS, StudyConfig
+from pernav.study.config import BELIEF_DEFAULTS, METHODS, TIMING_DEFAULTS, StudyConfig, current_names
 from pernav.study.parallel import init_worker, make_executor
 from pernav.study.report import running_mean, write_report
 from pernav.study.runner import run_town
 
 __all__ = ["OutputError", "check_output", "run_study", "summarize"]
-
-TIMING_KEYS = ("timing",)
-
 
 class OutputError(ValueError):
     """The output folder cannot be used (it holds a different study, or a study without --resume)."""
@@ -41,7 +38,7 @@ def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
 # Options added after studies had been saved, each with the value that reproduces a study from before it: a
 # saved study.json that lacks one of these ran with that value. Any other missing option (e.g. train.backtrack,
 # whose default changed what an older study did) makes the folder a different study.
-ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau": "explore", "calibration": 0, "train.ensemble": 1,
+ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau_policy": "explore", "calibration": 0, "train.ensemble": 1,
                                  "train.personal_updates": 0, "train.personal_replay": 0.0, "train.road": 0,
                                  "train.context": 0, "timing": TIMING_DEFAULTS, "belief": BELIEF_DEFAULTS}
 
@@ -79,7 +76,8 @@ def check_output(cfg: StudyConfig, out: Path, resume: bool) -> None:
             saved = json.loads(marker.read_text())
         except json.JSONDecodeError:
             raise OutputError(f"{str(marker)!r} is corrupted; cannot tell which study this folder holds") from None
-        diff = _difference(saved, _fingerprint(cfg)) if isinstance(saved, dict) else "it is not a configuration"
+        diff = _difference(current_names(saved), _fingerprint(cfg)) if isinstance(saved, dict) \
+            else "it is not a configuration"
         if diff:
             raise OutputError(f"output folder {str(out)!r} holds a different study ({diff}); choose another --out")
     elif out.exists() and any(out.iterdir()):
@@ -121,9 +119,9 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
         finally:
             executor.close()
     results = assemble(cfg, towns)
-    results["timing"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers, "ray": ray,
-                         "towns": {t["town"]: t["timing"] for t in towns},
-                         "profile": {t["town"]: t["profile"] for t in towns}}
+    results["wall_time"] = {"wall_s": round(time.perf_counter() - t0, 1), "workers": workers, "ray": ray,
+                            "towns": {t["town"]: t["wall_time"] for t in towns},
+                            "profile": {t["town"]: t["profile"] for t in towns}}
     tmp = out / ".results.json.tmp"
     tmp.write_text(json.dumps(results, indent=1))
     os.replace(tmp, out / "results.json")

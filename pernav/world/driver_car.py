@@ -22,9 +22,47 @@ if TYPE_CHECKING:
 class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
     """The navigated car, driven by a simulated driver who knows only what it has heard."""
 
-    SWERVE_REACH = 0.35  # a late turn is still tried this fraction of the way through a junction box
-    SKID_RATIO = 1.5  # lateral acceleration asked / grip beyond which a swerving car slides
-    SKID_TIME = 0.3  # s of sliding that carries the car over the kerb
+    # what the driver hears and decides
+    MISHEARD_SWAP = 0.5  # [probability] a misheard left/right instruction is taken as the other side (else lost)
+    FOLLOW_PREPARE = 0.5  # [probability] at a junction with only a "prepare" heard, the driver follows it
+    DECISION_REACH = 4.0  # [m] the driver commits to a branch at the latest this far before its node
+    PATH_HORIZON = 120.0  # [m] forced lanes (no choice) are added to the path this far ahead
+    TRAIL_LANES = 8  # [lanes] the last lanes the car left that it remembers (a follower drives along them)
+    # speed
+    CONSTRAINT_SIGHT = 60.0  # [m] speed limits ahead are seen at least this far, however short the driver's sight
+    CONSTRAINT_MARGIN = 1.0  # [m] the driver brakes to be at a limit's speed this far before it
+    PREPARE_SPEED = 0.5  # [] a heard "prepare" aims at this weight of (turn speed + cruise): halfway between them
+    PREPARE_CRUISE = 0.75  # [] share of the cruise speed kept while preparing for a turn on the approach
+    PREPARE_HEADWAY = 1  # [s] IDM time headway of that slowing (no leader: it has no effect)
+    STOP_HEADWAY = 1.0  # [s] IDM time headway towards a stop line
+    BRAKE_SHARE = 0.55  # [] a deceleration need beyond this share of the comfort deceleration is braked for
+    HARSH_SHARE = 1.5  # [] a need beyond this multiple of the comfort deceleration counts as a harsh brake
+    ACCEL_SHARE = 1.5  # [] the most acceleration asked, as a multiple of the comfort acceleration
+    RING_MARGIN = 1.0  # [m/s] speed on a roundabout's ring above the driver's turn speed (capped by SPEED_RING)
+    TIGHT_RADIUS = 18  # [m] a curved lane tighter than this is driven at the driver's turn speed
+    GAP_MARGIN = 2.0  # [m] free road wanted beside the cars' half lengths before a lane change
+    GAP_BEHIND = 0.5  # [s] of a following car's own travel also kept free behind (beside 1 s of its closing speed)
+    # a late turn: the swerve
+    SWERVE_REACH = 0.35  # [] a late turn is still tried this fraction of the way through a junction box
+    SWERVE_TIME = 3.0  # [s] a swerve lasts this long (harsh braking, sharp steering)
+    SWERVE_BRAKE = 0.8  # [] share of the car's maximum deceleration braked while swerving above the turn speed
+    PANIC_GAIN = 1.8  # [] the steering command is multiplied by this in the panicked yank ...
+    PANIC_SETTLE = 1.5  # [s] ... until this long before the swerve ends
+    SKID_RATIO = 1.5  # [] lateral acceleration asked / grip beyond which a swerving car slides
+    SKID_TIME = 0.3  # [s] of sliding that carries the car over the kerb
+    # hands and feet of the simulated driver (SIM_: the person's own are PersonAtTheWheel's, which this class inherits)
+    SIM_WHEEL_LAG = 0.12  # [s] time constant of a wheel driver's steering following the command
+    SIM_KEY_DEADBAND = 0.4  # [m/s2] a keyboard driver presses no pedal key for a smaller acceleration wanted
+    SIM_KEY_THROTTLE = 1.3  # [] the throttle key's acceleration, as a multiple of the comfort acceleration
+    SIM_KEY_BRAKE = 1.25  # [] the brake key overshoots the deceleration wanted by this factor ...
+    SIM_KEY_BRAKE_MIN = 1.5  # [m/s2] ... and brakes at least this hard
+    SIM_KEY_STEER_DEADBAND = 0.035  # [rad] a keyboard driver leaves a smaller steering error alone
+    SIM_KEY_STEER_RATE = 1.6  # [rad/s] a steering key turns the wheel at this rate
+    # the car: a kinematic bicycle with a friction circle
+    CG_SHARE = 0.5  # [] rear axle to centre of gravity, as a share of the wheelbase (the slip angle's factor)
+    GRIP_MARGIN = 0.5  # [m/s2] the friction circle's radius above the larger of the braking and lateral limits
+    MIN_LATERAL_SQ = 1.0  # [m2/s4] the square of the least lateral grip left however hard the car brakes
+    MIN_GRIP_SPEED = 0.1  # [m/s] speed floor of the yaw-rate limit (grip / speed)
 
     def __init__(self, world: World, driver: Driver, lane: LaneIndex, s: float) -> None:
         town = world.town
@@ -59,7 +97,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         pass
 
     def passed(self, lane: LaneIndex) -> None:
-        self.trail = [*self.trail[-7:], lane]
+        self.trail = [*self.trail[-(self.TRAIL_LANES - 1):], lane]
 
     # ----- hearing ----------------------------------------------------------------------------
     def hear(self, instruction: int, playback: str, now: float) -> None:
@@ -70,7 +108,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         heard, swapped, complied = self.world.driver_rng.random(3)  # four draws per play, always
         reaction = d.reaction_draw(float(self.world.driver_rng.standard_normal()))  # this prompt's reaction
         if heard > d.understanding(playback):
-            if instruction in SIDED and swapped < 0.5:  # misheard left <-> right
+            if instruction in SIDED and swapped < self.MISHEARD_SWAP:  # misheard left <-> right
                 instruction = OPPOSITE[instruction]
                 ev.misunderstood += 1
             else:
@@ -104,7 +142,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         self.heard = [h for h in self.heard if not (h.instruction in kinds and h.active_at <= now)]
 
     # ----- perception of the path ---------------------------------------------------------------
-    def extend_forced(self, horizon: float = 120.0) -> None:
+    def extend_forced(self, horizon: float = PATH_HORIZON) -> None:
         """Append lanes with a single successor (no decision) up to ``horizon`` metres ahead."""
         succ = self.world.town.successors
         while self.distance_along(len(self.path)) < horizon:
@@ -178,7 +216,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             if turn is not None and turn.direction in options:
                 choice = turn.direction
                 self.consume(SIDED, now)
-            elif prep is not None and prep.direction in options and follow_prep < 0.5:
+            elif prep is not None and prep.direction in options and follow_prep < self.FOLLOW_PREPARE:
                 choice = prep.direction
                 self.consume(PREPARES, now)
             if choice is None:
@@ -192,7 +230,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         self.committed.add(node)
         self.last_choice[node] = choice
         if late:
-            self.swerving_until = now + 3.0
+            self.swerving_until = now + self.SWERVE_TIME
             self.world.events.swerves += 1
 
     def recommit(self, node: str, k: int, now: float) -> None:
@@ -226,7 +264,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         node_dist = self.decision_node()
         if node_dist is not None:
             node, dist = node_dist
-            if dist <= max(d.decision_time * v, 4.0):
+            if dist <= max(d.decision_time * v, self.DECISION_REACH):
                 self.commit(node, now)
                 self.extend_forced()
         turn = self.active(now, TURNS)
@@ -248,7 +286,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             if lanes:
                 self.path = list(lanes[-1:])
                 self.last_choice[node] = turn.direction
-                self.swerving_until = now + 3.0
+                self.swerving_until = now + self.SWERVE_TIME
                 world.events.swerves += 1
                 self.advance_path()
                 self.extend_forced()
@@ -272,8 +310,8 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         cruise = limit * d.speed_factor
         acc = idm_acceleration(v, cruise, np.inf, 0.0, d.time_headway, d.comfort_accel, d.comfort_decel)
         needs = []
-        for dist, vmax in self.speed_constraints(max(d.sight_distance, 60.0)):
-            needs.append(braking_for(v_seen, vmax, dist - 1.0))
+        for dist, vmax in self.speed_constraints(max(d.sight_distance, self.CONSTRAINT_SIGHT)):
+            needs.append(braking_for(v_seen, vmax, dist - self.CONSTRAINT_MARGIN))
         nd = self.decision_node()
         if nd is not None and ":i" in nd[0]:
             node, dist = nd
@@ -283,7 +321,7 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
                 if j.kind == "roundabout":
                     needs.append(braking_for(v_seen, self.ring_speed(), dist))
                 elif expect is not None:
-                    target = d.turn_speed if expect.instruction in TURNS else 0.5 * (d.turn_speed + cruise)
+                    target = d.turn_speed if expect.instruction in TURNS else self.PREPARE_SPEED * (d.turn_speed + cruise)
                     needs.append(braking_for(v_seen, target, dist))
         if self.active(now, (Instruction.ENTER_ROUNDABOUT,)) is not None and nd is not None:
             j = town.junction_of_node(nd[0])
@@ -291,14 +329,15 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
                 needs.append(braking_for(v_seen, self.ring_speed(), nd[1]))
         prep = self.active(now, PREPARES)
         if prep is not None and town.lane_junction.get(self.path[0]) is None:
-            acc = min(acc, idm_acceleration(v, 0.75 * cruise, np.inf, 0, 1, d.comfort_accel, d.comfort_decel))
+            acc = min(acc, idm_acceleration(v, self.PREPARE_CRUISE * cruise, np.inf, 0, self.PREPARE_HEADWAY,
+                                            d.comfort_accel, d.comfort_decel))
             self.lane_for(prep.direction)
         elif (heard_turn := self.active(now, TURNS)) is not None:  # a turn without its "prepare": its lane
             self.lane_for(heard_turn.direction)
         need = max(needs, default=0.0)
         harsh_limit = d.vehicle.max_decel
-        if need > 0.55 * d.comfort_decel:
-            if need > 1.5 * d.comfort_decel and self.accel > -d.comfort_decel:
+        if need > self.BRAKE_SHARE * d.comfort_decel:
+            if need > self.HARSH_SHARE * d.comfort_decel and self.accel > -d.comfort_decel:
                 world.events.harsh_brakes += 1
             acc = min(acc, -min(need, harsh_limit))
         leader, gap = world.leader_of(self)
@@ -308,10 +347,10 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
                                             d.comfort_decel))
         stop = world.stop_line(self)
         if stop is not None:
-            acc = min(acc, idm_acceleration(v, cruise, stop, v, 1.0, d.comfort_accel, d.comfort_decel))
+            acc = min(acc, idm_acceleration(v, cruise, stop, v, self.STOP_HEADWAY, d.comfort_accel, d.comfort_decel))
         if now < self.swerving_until:
-            acc = min(acc, -0.8 * harsh_limit) if v > d.turn_speed else acc
-        acc = clamp(acc, -harsh_limit, d.comfort_accel * 1.5)
+            acc = min(acc, -self.SWERVE_BRAKE * harsh_limit) if v > d.turn_speed else acc
+        acc = clamp(acc, -harsh_limit, d.comfort_accel * self.ACCEL_SHARE)
         return acc
 
     def _steer_and_pedal(self, acc: float, now: float) -> None:
@@ -319,16 +358,18 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         world, d = self.world, self.driver
         harsh_limit = d.vehicle.max_decel
         steer_cmd = self.lane_steering(d.steering_tau)
-        if now < self.swerving_until - 1.5:  # panic: a sharp, over-corrected yank of the wheel
-            steer_cmd *= 1.8
+        if now < self.swerving_until - self.PANIC_SETTLE:  # panic: a sharp, over-corrected yank of the wheel
+            steer_cmd *= self.PANIC_GAIN
         if d.keyboard:  # on/off keys: pedals in steps, steering ramps at a fixed rate
-            acc = 0.0 if abs(acc) < 0.4 else (d.comfort_accel * 1.3 if acc > 0 else min(acc * 1.25, -1.5))
+            acc = 0.0 if abs(acc) < self.SIM_KEY_DEADBAND else (
+                d.comfort_accel * self.SIM_KEY_THROTTLE if acc > 0
+                else min(acc * self.SIM_KEY_BRAKE, -self.SIM_KEY_BRAKE_MIN))
             acc = max(acc, -harsh_limit)
             err = steer_cmd - self.steer
-            if abs(err) > 0.035:
-                self.steer += np.sign(err) * min(abs(err), 1.6 * world.dt)
+            if abs(err) > self.SIM_KEY_STEER_DEADBAND:
+                self.steer += np.sign(err) * min(abs(err), self.SIM_KEY_STEER_RATE * world.dt)
         else:
-            self.steer += (steer_cmd - self.steer) * min(1.0, world.dt / 0.12)
+            self.steer += (steer_cmd - self.steer) * min(1.0, world.dt / self.SIM_WHEEL_LAG)
         self.steer = clamp(self.steer, -d.vehicle.max_steering, d.vehicle.max_steering)
         self.accel = acc
         self.brake_input = clamp(-acc / harsh_limit, 0.0, 1.0)
@@ -343,12 +384,12 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             self.path.extend(saved)
 
     def ring_speed(self) -> float:
-        return min(SPEED_RING, self.driver.turn_speed + 1.0)
+        return min(SPEED_RING, self.driver.turn_speed + self.RING_MARGIN)
 
     def lane_speed(self, lane) -> float:
         limit = float(lane.speed_limit)
         if isinstance(lane, CircularLane):
-            return min(limit, self.driver.turn_speed) if lane.radius < 18 else min(limit, self.ring_speed())
+            return min(limit, self.driver.turn_speed) if lane.radius < self.TIGHT_RADIUS else min(limit, self.ring_speed())
         return limit
 
     def lane_for(self, direction: str | None) -> None:
@@ -373,8 +414,8 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
             if other.path[0] != lane:
                 continue
             ds = other.s - self.s
-            room = half + other.LENGTH / 2 + 2.0
-            if -room - max(other.speed - self.speed, 0.0) - 0.5 * other.speed < ds < room:
+            room = half + other.LENGTH / 2 + self.GAP_MARGIN
+            if -room - max(other.speed - self.speed, 0.0) - self.GAP_BEHIND * other.speed < ds < room:
                 return False
         return True
 
@@ -383,11 +424,11 @@ class DriverCar(PersonAtTheWheel, PathCar, Vehicle):
         and beyond the lateral grip the car runs wide."""
         v = self.speed
         veh = self.driver.vehicle
-        beta = np.arctan(0.5 * np.tan(self.steer))
+        beta = np.arctan(self.CG_SHARE * np.tan(self.steer))
         yaw_rate = v * np.sin(beta) / (self.LENGTH / 2)
-        total = max(veh.max_decel, veh.max_lateral_accel) + 0.5
-        lateral = min(veh.max_lateral_accel, np.sqrt(max(total**2 - self.accel**2, 1.0)))
-        grip = lateral / max(v, 0.1)
+        total = max(veh.max_decel, veh.max_lateral_accel) + self.GRIP_MARGIN
+        lateral = min(veh.max_lateral_accel, np.sqrt(max(total**2 - self.accel**2, self.MIN_LATERAL_SQ)))
+        grip = lateral / max(v, self.MIN_GRIP_SPEED)
         # a late swerve that asks the tyres for well beyond their grip (sharp steering while braking
         # hard, at speed) slides: the car runs wide over the kerb (docs/simulator.md, "too late")
         swerving = self.world.time < self.swerving_until

@@ -64,8 +64,8 @@ def synthetic(town: str = "Town2", seed: int = 0, rounds: int = 15, routes: int 
             "regret": {town: {"labels": [it["label"] for it in its[1:]], "cost_regret": regret,
                               "loss_regret": [1.0 / (k + 1) for k in range(rounds)]}},
             "diagnostics": {town: {}},
-            "timing": {"wall_s": 60.0, "workers": 2, "towns": {town: {it["label"]: 30.0 for it in its}},
-                       "profile": {town: {"evaluation_s": 40.0}}}}
+            "wall_time": {"wall_s": 60.0, "workers": 2, "towns": {town: {it["label"]: 30.0 for it in its}},
+                          "profile": {town: {"evaluation_s": 40.0}}}}
 
 
 def _claim(merged: dict, start: str):
@@ -129,6 +129,18 @@ def test_the_table_of_a_known_input():
     assert "| oracle | – | 0.00 (0.00) | 80 |" in town2  # every method the study ran, not only the paper's
     assert "| timing |" not in town2
     assert "Preset `paper`, seed 0, 2 online rounds (paper: 15), 2 routes" in town2
+
+
+def test_files_from_before_the_wall_time_rename_read_the_same():
+    def renamed(d: dict) -> dict:  # as written when the wall time was called "timing"
+        return {("timing" if k == "wall_time" else k): v for k, v in d.items()}
+
+    results = synthetic(rounds=2)
+    assert compact(renamed(results))["wall_time"] == compact(results)["wall_time"]  # an old results.json
+    small = compact(results)
+    page = paper_markdown(merge([small]))
+    assert "last run 60.0 s, 2 workers" in page
+    assert paper_markdown(merge([renamed(small)])) == page  # an old compact town
 
 
 def test_each_claim_flips_with_the_data():

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import shared_study, smoke_reference, without_timing
+from study_helpers import shared_study, smoke_reference, without_wall_time
 
 import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
@@ -38,8 +38,8 @@ def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
     proc = subprocess.run([*CMD, "--out", str(out), "--ray", "--workers", "2"], env=ENV, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = json.loads((out / "results.json").read_text())
-    assert got["timing"]["ray"] is True
-    assert without_timing(got) == reference
+    assert got["wall_time"]["ray"] is True
+    assert without_wall_time(got) == reference
 
 
 @pytest.mark.slow
@@ -60,7 +60,7 @@ def test_sigkill_at_random_moments_then_resume_gives_the_same_results(reference,
         report.append(f"killed={killed} after {delay:.1f} s with {done} entries checkpointed")
     resumed = subprocess.run([*CMD, "--out", str(out), "--resume"], env=ENV, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert without_timing(json.loads((out / "results.json").read_text())) == reference
+    assert without_wall_time(json.loads((out / "results.json").read_text())) == reference
     print("; ".join(report))
 
 

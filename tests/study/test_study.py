@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
-from study_helpers import shared_study, smoke_reference, without_timing
+from study_helpers import shared_study, smoke_reference, without_wall_time
 
 from pernav.cli import main
 from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
@@ -60,7 +60,7 @@ def test_smoke_results_match_the_schema(two_workers):
 def test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers(two_workers, tmp_path_factory):
     """Town1 run in a worker process beside Town2 gives what it gives alone in the study's own process."""
     one = smoke_reference(tmp_path_factory)
-    two = without_timing(two_workers[1])
+    two = without_wall_time(two_workers[1])
     assert [it["towns"]["Town1"] for it in two["iterations"]] == [it["towns"]["Town1"] for it in one["iterations"]]
     for key in ("summary", "regret", "diagnostics"):
         assert two[key]["Town1"] == one[key]["Town1"], key
@@ -135,9 +135,10 @@ def test_a_study_saved_before_an_option_existed_resumes_only_at_its_old_value(tm
         (tmp_path / "study.json").write_text(json.dumps({**saved, **(extra or {})}))
 
     cfg = preset("smoke")
-    saved_without("tau", "train.road")  # as written before these options existed
-    check_output(cfg, tmp_path, resume=True)  # it ran with tau explore and no road: the same study
-    for option, value, words in [("tau", "retimed", "'tau' differs: it predates"), ("routes", 2, "'routes' differs")]:
+    saved_without("tau_policy", "train.road")  # as written before these options existed
+    check_output(cfg, tmp_path, resume=True)  # it ran with an explore tau and no road: the same study
+    for option, value, words in [("tau_policy", "retimed", "'tau_policy' differs: it predates"),
+                                 ("routes", 2, "'routes' differs")]:
         changed = preset("smoke")
         setattr(changed, option, value)
         with pytest.raises(OutputError, match=words):
@@ -152,6 +153,24 @@ def test_a_study_saved_before_an_option_existed_resumes_only_at_its_old_value(tm
     saved_without(extra={"horizon": 5})  # an option this pernav no longer has
     with pytest.raises(OutputError, match="'horizon' is no longer an option"):
         check_output(cfg, tmp_path, resume=True)
+
+
+def test_a_configuration_saved_with_the_old_name_tau_reads_as_tau_policy(tmp_path, monkeypatch):
+    import pernav.study.config as config
+    from pernav.study.study import OutputError, _fingerprint, check_output
+
+    saved = {("tau" if k == "tau_policy" else k): v for k, v in _fingerprint(preset("smoke")).items()}
+    (tmp_path / "study.json").write_text(json.dumps(saved))  # a study.json written before the rename
+    check_output(preset("smoke"), tmp_path, resume=True)  # the same study
+    changed = preset("smoke")
+    changed.tau_policy = "retimed"
+    with pytest.raises(OutputError, match="'tau_policy' differs"):
+        check_output(changed, tmp_path, resume=True)
+    (tmp_path / "smoke.yaml").write_text((config.PRESETS_DIR / "smoke.yaml").read_text())
+    (tmp_path / "old.yaml").write_text("base: smoke\ntau: retimed\n")  # a preset written before the rename
+    monkeypatch.setattr(config, "PRESETS_DIR", tmp_path)
+    monkeypatch.setattr(config, "PRESETS", (*config.PRESETS, "old"))
+    assert config.preset("old").tau_policy == "retimed"
 
 
 def test_trainers_loaded_from_one_state_share_no_tensors():
@@ -224,7 +243,7 @@ def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, cap
 
     def run(tau: str) -> tuple[dict, RoundBuffers]:
         cfg = _smoke(["Town1"])
-        cfg.methods, cfg.tau, cfg.schedule = ["explore", "sysid"], tau, cfg.schedule[:2]
+        cfg.methods, cfg.tau_policy, cfg.schedule = ["explore", "sysid"], tau, cfg.schedule[:2]
         results = run_study(cfg, tmp_path / tau)
         last = sorted((tmp_path / tau / "checkpoints" / "Town1").glob("entry_*"))[-1]
         return results, RoundBuffers.load(last / "buffers_sysid")
@@ -239,8 +258,8 @@ def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, cap
     assert explore["iterations"][0]["towns"]["Town1"]["explore"]["episodes"]
     assert retimed["iterations"][1]["towns"]["Town1"]["explore"] == explore["iterations"][1]["towns"]["Town1"]["explore"]
     cfg = preset("smoke")
-    cfg.tau = "random"
-    with pytest.raises(PresetError, match="tau must be one of explore, retimed, got 'random'"):
+    cfg.tau_policy = "random"
+    with pytest.raises(PresetError, match="tau_policy must be one of explore, retimed, got 'random'"):
         cfg.validate()
     with pytest.raises(SystemExit) as exit_:  # argparse's own usage error
         main(["study", "--preset", "smoke", "--out", str(tmp_path / "s"), "--tau-policy", "random"])

@@ -92,25 +92,25 @@ def main() -> None:
     ap.add_argument("town")
     ap.add_argument("drivers", type=int)
     ap.add_argument("population_seed", type=int)
-    ap.add_argument("--tau-policy", dest="tau", choices=("explore", "retimed"), default="explore")
+    ap.add_argument("--tau-policy", dest="tau_policy", choices=("explore", "retimed"), default="explore")
     args = ap.parse_args()
     cfg, population, rng = preset("personal"), Population(seed=args.population_seed), random.Random(args.population_seed)
     rows = []
     for k in range(args.drivers):
         profile, context = population.sample()
         entry = Entry(f"p{k}", "offline", profile.to_dict(), **context.to_dict())
-        policy = explore_module() if args.tau == "explore" else RetimedExplore(p=1.0, seed=5000 + k)
+        policy = explore_module() if args.tau_policy == "explore" else RetimedExplore(p=1.0, seed=5000 + k)
         tau = runner.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, policy)
         d = resolve(profile, context)
         late = lateness(d)
-        outcomes = turn_outcomes(tau) if args.tau == "retimed" else []
+        outcomes = turn_outcomes(tau) if args.tau_policy == "retimed" else []
         rows.append([d.reaction_time, d.decision_time, late["explore"], late["excess"],
                      oracle_policy(d).turn_lead(10.0) / 10.0, *outcomes, prepare_delay(tau),
                      *timing_features(tau).tolist()])
     R = np.array(rows)
     for j in range(R.shape[1]):  # a drive without such prompts: the mean of the others
         R[np.isnan(R[:, j]), j] = np.nanmean(R[:, j])
-    n_extra = 1 + (3 if args.tau == "retimed" else 0)  # prepare delay (+ the turn outcomes)
+    n_extra = 1 + (3 if args.tau_policy == "retimed" else 0)  # prepare delay (+ the turn outcomes)
     extra_names = ["missed under 4 s", "missed or hard", "shortest calm lead"][:n_extra - 1] + ["prepare delay"]
     late = R[:, 3] >= 0.05
     corr = [np.corrcoef(R[:, 3], R[:, i])[0, 1] for i in (0, 1)]
