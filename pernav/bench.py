@@ -403,7 +403,7 @@ PLAY_VIEWS = (("top", "normal"), ("third_person", "normal"), ("first_person", "n
               ("third_person", "foggy"), ("first_person", "foggy"))  # (camera, visual): each view, clear and in fog
 
 
-def bench_play(quick: bool = False, screenshots: str | None = None) -> dict[str, Any]:
+def bench_play(quick: bool = False, screenshots: str | None = None, live: bool = False) -> dict[str, Any]:
     """Frame time of ``pernav play``'s loop (:class:`~pernav.play.loop.PlaySession`) in each view (camera ``top``,
     ``third_person``, ``first_person``, each clear and in fog) with the default traffic (8 cars), Town3 route 1 (a
     roundabout), the scripted bot at the wheel, drawn off screen (``SDL_VIDEODRIVER=dummy`` unless a display driver
@@ -412,10 +412,18 @@ def bench_play(quick: bool = False, screenshots: str | None = None) -> dict[str,
     10 world frames per second a frame must take under 100 ms for real time, and a picture under 33 ms for 30
     pictures per second. A picture's time is one draw of the view. The same drive without drawing is the reference.
     ``screenshots``: a folder to save one picture per view in (``view_<camera>[_fog].png``, 13 s into the drive, at the
-    first junction, whose route turns left)."""
+    first junction, whose route turns left).
+
+    ``live``: each view in a window paced to real time instead, the window's events handled, 30 s of the drive each
+    (5 s if ``quick``): :func:`pernav.play.livebench.bench_live` (per view the frame time and how late each frame
+    ended against the clock; the display used, ``dummy`` where there is no X11 or Wayland display)."""
     import os
     from pathlib import Path
 
+    if live:
+        from pernav.play.livebench import bench_live
+
+        return bench_live(PLAY_VIEWS, steps=5 if quick else 30, screenshots=screenshots)
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     from pernav.play.loop import PlaySession
 
@@ -535,12 +543,14 @@ BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, 
               "timing": bench_timing, "belief": bench_belief}
 
 
-def run_benchmarks(which: str = "all", quick: bool = False, screenshots: str | None = None) -> dict[str, dict[str, Any]]:
+def run_benchmarks(which: str = "all", quick: bool = False, screenshots: str | None = None,
+                   live: bool = False) -> dict[str, dict[str, Any]]:
     """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``, ``belief``) or ``all``; returns
     {name: figures}.
-    ``screenshots``: a folder for the play benchmark's picture of each view."""
+    ``screenshots``: a folder for the play benchmark's picture of each view; ``live``: the play benchmark in a window
+    paced to real time (:func:`bench_play`)."""
     if which != "all" and which not in BENCHMARKS:
         raise ValueError(f"unknown benchmark {which!r}; choose one of {', '.join(BENCHMARKS)} or all")
     names = list(BENCHMARKS) if which == "all" else [which]
-    return {name: BENCHMARKS[name](quick=quick, **({"screenshots": screenshots} if name == "play" else {}))
+    return {name: BENCHMARKS[name](quick=quick, **({"screenshots": screenshots, "live": live} if name == "play" else {}))
             for name in names}
