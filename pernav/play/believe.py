@@ -15,6 +15,7 @@ Example:
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlaySession
 from pernav.play.personal import PersonalResult, _policy_row, study_settings, summary_markdown
+from pernav.play.screens import SessionWindow
 from pernav.play.sessions import check_session
 from pernav.study.checkpoints import final_belief
 from pernav.study.config import BELIEF_DEFAULTS
@@ -38,6 +40,8 @@ __all__ = ["REFERENCE_SPEED", "BeliefSession", "belief_markdown", "prompt_lead",
 
 #: the speed at which a person is shown how their "turn" prompt moved (50 km/h, in m/s)
 REFERENCE_SPEED = 50 / 3.6
+#: what the window says reading a drive's answers takes before a session has measured it (s; measured: well under 1 s)
+READ_S = 2.0
 
 
 def prompt_lead(fields: dict[str, Any], speed: float = REFERENCE_SPEED) -> float:
@@ -62,7 +66,7 @@ class BeliefSession:
     """A person's drives with prompts timed by the belief learner of the study in ``study_dir`` (its answer detector
     and population prior for ``town``). The options are :class:`pernav.play.personal.PersonalSession`'s, but for
     ``updates`` and ``resume`` (the belief takes no gradient steps; a stopped session is kept, not resumed) and
-    ``learner`` (always ``"belief"``)."""
+    ``learner`` (always ``"belief"``); ``window``: one window for the whole session, as there."""
 
     def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
                  context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
@@ -98,6 +102,8 @@ class BeliefSession:
         self.drives: list[dict[str, Any]] = []
         self.beliefs: list[dict[str, Any]] = [self._belief_record(None)]  # the prior, then after each whole drive
         self.learned: list[int] = []  # the drives the belief has read (the CLI's resume line counts them)
+        self.learn_s: float | None = None  # how long reading the last drive took (the next wait's estimate)
+        self.screens = SessionWindow(town, False)  # the session's window, opened by run()
         self.ctrl_c = False
 
     def _belief_record(self, drive: int | None) -> dict[str, Any]:
@@ -122,17 +128,15 @@ class BeliefSession:
         self.announce(title)
         self.ready()
         policy = "explore" if policy_name == "explore" else info_action_module("belief_action")
+        self.screens.waiting(title, None)
         session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
                               seed=derive_seed(self.seed, self.town, "drive", number), n_traffic=self.n_traffic,
                               window=self.window, speaker=self.speaker,
                               env_config={"belief": self.tracker}, title=title, countdown=self.countdown,
-                              hide_cost=self.hide_cost, notice=self.notice, calibrate=self.calibrate and number == 1)
-        try:
-            session.controls = self._controls()
-            result = session.run()
-        finally:
-            if session.view is not None:
-                session.view.close()
+                              hide_cost=self.hide_cost, notice=self.notice, calibrate=self.calibrate and number == 1,
+                              progress=f"Drive {number} of {len(self.routes)}", view=self.screens.view)
+        session.controls = self._controls()
+        result = session.run()
         m = result.metrics
         record = {**m, "policy": policy_name, "round": number - 1, "route": route, "label": f"drive{number}",
                   "frames": result.frame_stats(), "file": None}
@@ -150,9 +154,13 @@ class BeliefSession:
     def _learn(self, number: int, trajectory: Any) -> None:
         """The belief reads the drive's answers; the person sees where it stands and how the prompt moved."""
         before = self.beliefs[-1]
+        started = time.perf_counter()
+        self.screens.learning("the navigation is reading your answers", started,
+                              READ_S if self.learn_s is None else self.learn_s, last=number == len(self.routes))
         tracker = self.tracker.copy()
         tracker.observe_drive(trajectory)
         self.tracker = tracker
+        self.learn_s = time.perf_counter() - started
         self.learned.append(number - 1)
         now = self._belief_record(number)
         self.beliefs.append(now)
@@ -178,15 +186,20 @@ class BeliefSession:
     def run(self) -> PersonalResult:
         """Drive the routes in order; stops early when the person quits or on Ctrl-C (what was driven is kept)."""
         interrupted = False
-        try:
-            for number, route in enumerate(self.routes, start=1):
-                result = self._drive(number, route)
-                self.ctrl_c = self.ctrl_c or result.ctrl_c
-                if result.metrics["interrupted"] or result.ctrl_c:
-                    interrupted = True
-                    break
-        except KeyboardInterrupt:
-            interrupted = self.ctrl_c = True
+        with SessionWindow(self.town, self.window) as self.screens:  # closed at the end, whatever happens
+            try:
+                for number, route in enumerate(self.routes, start=1):
+                    result = self._drive(number, route)
+                    self.ctrl_c = self.ctrl_c or result.ctrl_c
+                    if result.metrics["interrupted"] or result.ctrl_c:
+                        interrupted = True
+                        break
+            except KeyboardInterrupt:
+                interrupted = self.ctrl_c = True
+            return self._finish(interrupted)
+
+    def _finish(self, interrupted: bool) -> PersonalResult:
+        """The summary of what was driven, written; the end screen (not after Ctrl-C)."""
         whole = [d for d in self.drives if not d["interrupted"]]
         summary = {"study": self.study, "town": self.town, "routes": self.routes, "seed": self.seed,
                    "learner": "belief", "interrupted": interrupted,
@@ -201,6 +214,8 @@ class BeliefSession:
             atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
                 f"# Personal timing: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
                 f"{summary_markdown(summary)}\n"))
+        if not self.ctrl_c:  # stopped at the terminal (Ctrl-C): no screen waits for the person
+            self.ctrl_c = self.screens.finish(self._controls, len(whole), len(self.routes), interrupted)
         if self.speaker is not None and hasattr(self.speaker, "close"):
             self.speaker.close()
         return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)

@@ -46,6 +46,7 @@ from tensordict import TensorDictBase
 
 from pernav.env.navigation import load_user
 from pernav.play.controls import ScriptedControls
+from pernav.play.framelog import DriveLog, InputTap
 from pernav.play.handling import apply_handling
 from pernav.world.constants import ACTION_NAMES, PLAYBACK, TOWN_NAMES, audio_duration
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
@@ -70,12 +71,15 @@ class PlayQuit(Exception):
 class PlayResult:
     """A finished (or quit) drive: its ``[T]`` trajectory (``None`` if quit before the first step), its metrics and
     the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing);
-    ``ctrl_c``: Ctrl-C was pressed (the drive is kept, marked interrupted if it was cut short; the caller stops)."""
+    ``ctrl_c``: Ctrl-C was pressed (the drive is kept, marked interrupted if it was cut short; the caller stops);
+    ``log``: every world frame, decision and prompt as driven, a quit drive's last part second too
+    (:mod:`pernav.play.framelog`: its rows of a session's CSV)."""
 
     trajectory: TensorDictBase | None
     metrics: dict[str, Any]
     frame_ms: list[float] = field(default_factory=list)
     ctrl_c: bool = False
+    log: DriveLog | None = None
 
     def frame_stats(self) -> dict[str, float]:
         """Median and 95th percentile of the frame times (ms)."""
@@ -162,7 +166,9 @@ class PlaySession:
     second after the first prompt is played, or at the end). ``ready`` (default: a window in real time, a person):
     the screens around the drive (``calibrate``: a wheel's axes first; a ready screen showing ``title`` and
     ``notice``; a ``countdown`` of seconds; the result at the end); ``hide_cost`` keeps the tracking cost off the
-    screen. ``K`` (history window, default 5) and ``env_config``
+    screen; ``progress`` ("Drive 2 of 6") stays in a corner during the drive (default: the ``title``). ``view``: an
+    open :class:`~pernav.play.view.PlayView` to draw into instead of a new one (a session of drives keeps one
+    window; :meth:`close` leaves it open). ``K`` (history window, default 5) and ``env_config``
     (entries of the navigation env's config, e.g. a study's planning context lengths) default to the policy's
     ``K`` and ``env_config`` attributes where it has them (a study's policy: :func:`pernav.play.personal.study_policy`).
 
@@ -179,7 +185,8 @@ class PlaySession:
                  size: tuple[int, int] = (960, 720), screenshot: str | Path | None = None,
                  screenshot_at: float | None = None, env_config: Mapping[str, Any] | None = None,
                  ready: bool | None = None, countdown: float = 3.0, title: str | None = None,
-                 notice: str | None = None, hide_cost: bool = False, calibrate: bool = False) -> None:
+                 notice: str | None = None, hide_cost: bool = False, calibrate: bool = False,
+                 progress: str | None = None, view: Any = None) -> None:
         from pernav.env.torchrl_env import explore_module, oracle_module
         from pernav.trainer.collect import history_env
 
@@ -216,8 +223,16 @@ class PlaySession:
         self.calibration: dict[str, bool] | None = None  # per control, whether the calibration saw it move
         self.screenshot_path = None if screenshot is None else Path(screenshot)
         self.screenshot_at = screenshot_at
-        self.view = None
-        if window or draw or screenshot is not None:
+        self.progress = progress  # the HUD's counter during the drive ("Drive 2 of 6"; else the title)
+        # the announced manoeuvre of the prompt on screen (see prompt_text); the car's route progress every frame
+        self._prompted: tuple[int, str, float] | None = None
+        self._announced: tuple[Any, Any] | None = None  # (route, manoeuvre), None: nothing ahead when it played
+        self.route_progress = 0.0
+        self.view = view
+        self._own_view = view is None  # a view given stays open at close(): its owner (a session of drives) closes it
+        if view is not None:
+            view.new_drive(self.nav.town)
+        elif window or draw or screenshot is not None:
             from pernav.play.view import PlayView
 
             self.view = PlayView(self.nav.town, size=size, window=window)
@@ -231,6 +246,8 @@ class PlaySession:
         self._snap: dict[int, tuple[np.ndarray, float]] = {}
         self.frames = 0
         self.shot: Path | None = None
+        self.log = DriveLog(frequency)  # the lab's record of the drive (pernav.play.framelog)
+        self._tap = InputTap(self.controls)  # the car's controls keeping, for the log, what the car got each frame
 
     # ----- what the window shows ---------------------------------------------------------------------
     def interpolated(self, alpha: float) -> dict[int, tuple[np.ndarray, float]]:
@@ -247,21 +264,41 @@ class PlaySession:
         return out
 
     def prompt_text(self) -> str | None:
-        """The prompt on screen with the distance to its manoeuvre, while it is fresh (else None)."""
+        """The prompt on screen with the live distance to its manoeuvre (else None).
+
+        A prompt holds until the next one or until the car has passed the manoeuvre that was next when it played
+        (the person may still need it 50 m before the junction, or stopped at its line); a re-route drops it (its
+        junction is on the old route: the navigation speaks again for the new one). A prompt played with no
+        manoeuvre ahead (near the destination) names none to wait for: it stays 5 s after its audio, as all did."""
         if self.prompt is None:
             return None
+        if self.prompt is not self._prompted:  # played since the last frame: note what it announced now
+            self._update_distance()
         instruction, playback, at = self.prompt
-        if self.nav.world.time - at > audio_duration(instruction, playback) + 5.0:
-            return None
-        far = f"  -  {self.distance:.0f} m" if math.isfinite(self.distance) else ""
+        if self._announced is None:
+            if self.nav.world.time - at > audio_duration(instruction, playback) + 5.0:
+                return None
+            distance = self.distance
+        else:
+            route, manoeuvre = self._announced
+            if route is not self.nav.route or self.route_progress >= manoeuvre.s:
+                return None
+            distance = manoeuvre.s - self.route_progress
+        far = f"  -  {distance:.0f} m" if math.isfinite(distance) else ""
         return f"{ACTION_NAMES[instruction]}{far}"
 
     def _update_distance(self) -> None:
+        """The car's route progress and the next decision manoeuvre (kind, distance); a prompt played since the
+        last call is tied to that manoeuvre (what :meth:`prompt_text` holds it for)."""
         nav = self.nav
         progress, _ = nav.route.project(nav.world.ego.position, hint=nav.progress)
         ahead = nav.route.upcoming(progress)
+        self.route_progress = progress
         self.distance = float(ahead[0].s - progress) if ahead else math.inf
         self.next_manoeuvre = ahead[0].kind if ahead else "none"
+        if self.prompt is not self._prompted:
+            self._prompted = self.prompt
+            self._announced = (nav.route, ahead[0]) if ahead else None
 
     def _snapshot(self) -> None:
         self._snap = {id(c): (c.position.copy(), float(c.heading)) for c in self.nav.world.cars}
@@ -269,8 +306,9 @@ class PlaySession:
     # ----- the env's callbacks ---------------------------------------------------------------------
     def _on_prompt(self, instruction: int, playback: str) -> None:
         self.prompt = (instruction, playback, self.nav.world.time)
-        if self.speaker is not None:
-            self.speaker.say(instruction, playback)
+        said = self.speaker.say(instruction, playback) if self.speaker is not None else False
+        # Speaker.say tells False when nobody hears it (no device, a file missing); a speaker that tells nothing played
+        self.log.add_prompt(self.nav.world.time, instruction, playback, spoken=said is not False)
 
     def _sleep_until(self, due: float) -> None:
         wait = due - time.perf_counter()
@@ -278,6 +316,7 @@ class PlaySession:
             time.sleep(wait)
 
     def _on_frame(self) -> None:
+        self.log.add_frame(self.nav, self._tap)  # first: the frame as the env sensed it (its cost counts in frame_ms)
         start = time.perf_counter()
         compute = start - self._t_out  # the world frame (at a second's start also the policy, the env's step)
         self.frames += 1
@@ -337,7 +376,8 @@ class PlaySession:
 
         td = self.env.reset()
         nav = self.nav
-        nav.world.ego.external = self.controls
+        self._tap = InputTap(self.controls)  # the controls now: a caller may have set them after __init__
+        nav.world.ego.external = self._tap
         apply_handling(nav.world.ego)  # the person's truck steers as slowly as the simulated truck driver's
         nav.world.ego.color = (50, 200, 0)  # drawn green among the blue traffic
         nav.on_prompt, nav.on_frame = self._on_prompt, self._on_frame
@@ -354,10 +394,12 @@ class PlaySession:
                     self._calibrate()
                 self._wait_ready()
                 self._count_down()
+            self.log.start()
             self.t0 = self._t_out = time.perf_counter()
             with torch.no_grad():
                 for _ in range(max_steps):
                     td.update(self.policy(td))
+                    self.log.add_step(nav.world.time, *nav.decode(td["action"]))
                     td = self.env.step(td)
                     nxt = self.env.step_mdp(td)  # what env.rollout does between two steps
                     steps.append(td.copy())
@@ -371,6 +413,7 @@ class PlaySession:
         finally:
             nav.on_prompt = nav.on_frame = None
             self.screen = None
+            self.log.stop()
         if self.view is not None and self.screenshot_path is not None and self.shot is None:
             self.shot = self.screenshot(self.screenshot_path)  # the drive ended before the moment asked for
         trajectory = torch.stack(steps).contiguous() if steps else None
@@ -391,7 +434,7 @@ class PlaySession:
                 self._show_result(metrics)
             except KeyboardInterrupt:  # the drive is whole; the caller stops after recording it
                 ctrl_c = True
-        return PlayResult(trajectory, metrics, list(self.frame_ms), ctrl_c)
+        return PlayResult(trajectory, metrics, list(self.frame_ms), ctrl_c, self.log)
 
     # ----- the screens around a drive ----------------------------------------------------------------
     def _screen_tick(self) -> None:
@@ -500,7 +543,10 @@ class PlaySession:
             self.screen = None
 
     def close(self) -> None:
-        """Close the window and the speaker."""
+        """Close the window and the speaker; a session given its ``view`` is one drive of a longer session, whose
+        owner closes the window and the speaker after its last drive: both stay open."""
+        if not self._own_view:
+            return
         if self.view is not None:
             self.view.close()
         if self.speaker is not None and hasattr(self.speaker, "close"):

@@ -53,6 +53,7 @@ from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlayResult, PlaySession
+from pernav.play.screens import SessionWindow
 from pernav.play.sessions import check_session
 from pernav.study.checkpoints import final_models
 from pernav.study.config import LEARNERS
@@ -72,6 +73,8 @@ RESUME_KEYS = ("study", "town", "routes", "seed", "learner", "user", "context", 
 # meta updates after a round by default (fewer if the study took fewer): a few, as the person waits for the next
 # drive; the study's own (50 in the default preset) take minutes on a laptop with second-order updates
 UPDATES = 10
+# what the window says one meta update takes before a session has measured its own (a lab laptop: ~41 s for 10)
+UPDATE_S = 4.0
 
 # train options added after studies had been saved, with the value an older study.json without them ran with
 # (pernav.study.study.ADDED_OPTIONS; not imported: it loads the whole study package)
@@ -306,8 +309,9 @@ class PersonalSession:
     ``updates``: meta updates after each round (default: the study's ``train.updates``, at most :data:`UPDATES`).
     ``announce`` is called with a neutral line before each drive ("Drive 2 of 5: Town1 route 3") and after it (how
     it went, not with which policy), ``ready`` after the announcement (e.g. waits for the person to press Enter);
-    ``window``, ``speaker``, ``countdown``, ``hide_cost`` and ``notice`` as :class:`PlaySession` (each drive's
-    window shows "Drive n of N"; ``calibrate``: a wheel's calibration screen before the first drive). ``record_dir``
+    ``window``, ``speaker``, ``countdown``, ``hide_cost`` and ``notice`` as :class:`PlaySession` (one window for
+    the session: "Drive n of N" on each drive, the learning's wait between drives, the end until Enter;
+    ``calibrate``: a wheel's calibration screen before the first drive). ``record_dir``
     must not hold another session, unless ``resume`` (then it must hold one, run with the same settings).
 
     >>> session = PersonalSession("runs/smoke", "Town1", [0, 3, 5], seed=1)   # doctest: +SKIP
@@ -344,6 +348,8 @@ class PersonalSession:
         self.meta_losses: list[float] = []
         self.countdown, self.hide_cost, self.notice, self.calibrate = countdown, hide_cost, notice, calibrate
         self.learned: list[int] = []  # rounds whose drives the model has learned from
+        self.learn_s: float | None = None  # how long the last round's learning took (the next wait's estimate)
+        self.screens = SessionWindow(town, False)  # the session's window, opened by run()
         self.ctrl_c = False
         self._first_drive = True  # the calibration screen comes before it
         self._trajectories: dict[tuple[int, str], TensorDictBase] = {}  # (round, label) -> whole drive of this run
@@ -375,20 +381,18 @@ class PersonalSession:
         self.announce(title)
         self.ready()
         policy = self.policy if policy_name == "adapted" else "explore"
+        self.screens.waiting(title, None)
         session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
                               seed=derive_seed(self.seed, self.town, "drive", round_), n_traffic=self.n_traffic,
                               window=self.window, speaker=self.speaker, K=self.study.K,
                               # adapt_speed's drives choose the playback speed too (21 actions); explore's do not
                               env_config=self.study.env_config(None if policy_name == "adapted" else 7),
                               title=title, countdown=self.countdown, hide_cost=self.hide_cost, notice=self.notice,
-                              calibrate=self.calibrate and self._first_drive)
+                              calibrate=self.calibrate and self._first_drive, progress=f"Drive {number} of {total}",
+                              view=self.screens.view)
         self._first_drive = False
-        try:
-            session.controls = self._controls()
-            result = session.run()
-        finally:
-            if session.view is not None:  # the speaker stays: it serves the next drive
-                session.view.close()
+        session.controls = self._controls()
+        result = session.run()
         m = result.metrics
         record = {**m, "policy": policy_name, "round": round_, "label": label, "tau": round_ == 0 or policy_name
                   == "explore", "adapted_on_round": self.adapted_on if policy_name == "adapted" else None,
@@ -430,14 +434,19 @@ class PersonalSession:
         self.buffers.add(round_, in_action_space(tau, self.study.n_actions), tau=True)
         if other is not None:
             self.buffers.add(round_, in_action_space(other, self.study.n_actions))
+        started, last = time.perf_counter(), round_ == len(self.routes) - 1
+        estimate = UPDATE_S * self.updates if self.learn_s is None else self.learn_s
         for _ in tqdm(range(self.updates), desc="learning from your drives", leave=False, disable=not self.progress):
+            self.screens.learning("the navigation is learning from your drives", started, estimate, last)
             self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
+        self.screens.learning("the navigation is learning from your drives", started, estimate, last)
         self.params = adapted_parameters(self.study, self.trainer, [tau],
                                          derive_seed(self.seed, self.town, "personal", round_))
         self.policy.set_parameters(self.params)
         self.adapted_on = round_
         self.learned.append(round_)
         self._save_model()
+        self.learn_s = time.perf_counter() - started
 
     # ----- progress on disk, and resuming ------------------------------------------------------------
     def settings(self) -> dict[str, Any]:
@@ -540,24 +549,25 @@ class PersonalSession:
         total = 1 + 2 * (len(self.routes) - 1)
         interrupted = False
         self._first_drive = True
-        try:
-            for round_ in range(len(self.routes)):
-                for r, route, name, label, number in self._slots():
-                    if r != round_ or self._whole(r, label) is not None:
-                        continue
-                    result = self._drive(r, route, name, label, number, total)
-                    self.ctrl_c = self.ctrl_c or result.ctrl_c
-                    if result.metrics["interrupted"] or result.ctrl_c:
-                        interrupted = True
+        with SessionWindow(self.town, self.window) as self.screens:  # closed at the end, whatever happens
+            try:
+                for round_ in range(len(self.routes)):
+                    for r, route, name, label, number in self._slots():
+                        if r != round_ or self._whole(r, label) is not None:
+                            continue
+                        result = self._drive(r, route, name, label, number, total)
+                        self.ctrl_c = self.ctrl_c or result.ctrl_c
+                        if result.metrics["interrupted"] or result.ctrl_c:
+                            interrupted = True
+                            break
+                    if interrupted:
                         break
-                if interrupted:
-                    break
-                if round_ not in self.learned:  # (after the last round too: model.pt keeps what all drives taught)
-                    self._learn(round_, self._whole_trajectory(round_, "explore"),
-                                self._whole_trajectory(round_, "adapted"))
-        except KeyboardInterrupt:
-            interrupted = self.ctrl_c = True
-        return self._finish(interrupted)
+                    if round_ not in self.learned:  # (after the last round too: model.pt keeps what all drives taught)
+                        self._learn(round_, self._whole_trajectory(round_, "explore"),
+                                    self._whole_trajectory(round_, "adapted"))
+            except KeyboardInterrupt:
+                interrupted = self.ctrl_c = True
+            return self._finish(interrupted)
 
     def _finish(self, interrupted: bool) -> PersonalResult:
         summary = {"study": str(self.study.folder), "town": self.town, "routes": self.routes, "seed": self.seed,
@@ -575,6 +585,9 @@ class PersonalSession:
             atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
                 f"# Personalization: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
                 f"{summary_markdown(summary)}\n"))
+        if not self.ctrl_c:  # stopped at the terminal (Ctrl-C): no screen waits for the person
+            whole = sum(not d["interrupted"] for d in self.drives)
+            self.ctrl_c = self.screens.finish(self._controls, whole, len(self._slots()), interrupted)
         if self.speaker is not None and hasattr(self.speaker, "close"):
             self.speaker.close()
         return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)

@@ -1,5 +1,6 @@
 """The play window: the town around the car seen through the context's camera, the route ahead, the prompt with
-the distance to its manoeuvre, the speed limit, and the way back when the car has left its route.
+the distance to its manoeuvre, the drive's counter ("Drive 2 of 6"), the speed limit, and the way back when the car
+has left its route.
 
 The view follows the drive's context (``--camera``, ``--visual``; :class:`~pernav.world.drivers.Context`): ``top``
 the north-up map, ``third_person`` a heading-up chase view, ``first_person`` the driver's seat; ``foggy`` veils
@@ -25,10 +26,9 @@ import numpy as np
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
-__all__ = ["DisplayError", "PlayView", "frame_of"]
+__all__ = ["DisplayError", "PlayView", "frame_of", "hud_texts"]
 
 EGO_COLOR = (50, 200, 0)
-PROMPT_SECONDS = 5.0  # a played prompt stays on screen this long after its audio
 OFF_ROUTE = 4.0  # m from the route's line beyond which the way back is shown (the env re-plans at 8 m)
 ROUTE_AHEAD = 250.0  # m of the route drawn ahead of the car
 
@@ -40,7 +40,7 @@ class DisplayError(ValueError):
 class PlayView:
     """A window (``window=True``) or an off-screen surface of ``size`` pixels at ``scaling`` pixels per metre (the
     map views). ``camera`` (``top``, ``third_person``, ``first_person``) and ``visual`` (``foggy`` veils the view)
-    default to the drive's context, read at the first :meth:`draw`."""
+    default to the drive's context, read at its first :meth:`draw` (again for each drive after :meth:`new_drive`)."""
 
     def __init__(self, town: Any, size: tuple[int, int] = (960, 720), scaling: float = 6.0, window: bool = False,
                  camera: str | None = None, visual: str | None = None) -> None:
@@ -71,14 +71,21 @@ class PlayView:
         else:
             self.surface = pygame.Surface(size)
         pygame.font.init()  # fonts only: pygame.init() would open audio devices
-        self.town, self.size, self.scaling = town, size, scaling
-        self.camera_name, self.visual = camera, visual
-        self.camera: Any = None  # made at the first draw (the drive's context says which)
-        self.fog: Any = None
-        self.limit_kmh: float | None = None  # the speed limit of the street the car is on (kept through junctions)
+        self.size, self.scaling = size, scaling
+        self._asked = (camera, visual)  # what the caller chose; None: each drive's context chooses
+        self.new_drive(town)
         self.big = pygame.font.Font(None, 54)
         self.font = pygame.font.Font(None, 28)
         self.small = pygame.font.Font(None, 22)
+
+    def new_drive(self, town: Any) -> None:
+        """Start drawing a new drive in ``town``: the camera, the fog and the speed limit are chosen again (a
+        window kept open across the drives of a session shows each drive's own context and town)."""
+        self.town = town
+        self.camera_name, self.visual = self._asked
+        self.camera: Any = None  # made at the first draw (the drive's context says which)
+        self.fog: Any = None
+        self.limit_kmh: float | None = None  # the speed limit of the street the car is on (kept through junctions)
 
     def _choose(self, session: Any) -> None:
         from pernav.play.cameras import Fog, make_camera
@@ -94,39 +101,35 @@ class PlayView:
 
     def draw(self, session: Any, alpha: float = 1.0) -> None:
         """Draw ``session``'s world with every car ``alpha`` of the way from its last frame to this one."""
-        from pernav.world.constants import ACTION_NAMES
-
         if self.camera is None:
             self._choose(session)
         frame = frame_of(session, alpha)
         self.camera.draw(self.surface, frame, self.fog)
-        self._hud(session, ACTION_NAMES)
+        self._hud(session)
         self._speed_limit(session)
         self._way_back(session, frame)
 
-    def _hud(self, session: Any, names: tuple[str, ...]) -> None:
-        pg, out, nav = self.pygame, self.surface, session.nav
+    def _hud(self, session: Any) -> None:
+        pg, out = self.pygame, self.surface
         w, h = self.size
-        prompt = session.prompt_text()
-        if prompt is not None:
+        texts = hud_texts(session)
+        if "prompt" in texts:
             band = pg.Surface((w, 70), pg.SRCALPHA)
             band.fill((0, 0, 0, 170))
             out.blit(band, (0, 0))
-            text = self.big.render(prompt, True, (255, 255, 255))
+            text = self.big.render(texts["prompt"], True, (255, 255, 255))
             out.blit(text, ((w - text.get_width()) // 2, 12))
-        ev, ego = nav.world.events, nav.world.ego
-        cost = "" if getattr(session, "hide_cost", False) else f"cost {nav.tracking_cost:6.0f}   "
-        status = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}"
-                  f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
-                  f"re-routes {nav.reroutes}")
+        if "drive" in texts:  # below the prompt's band, on its own dark box: readable over fog and sky
+            text = self.font.render(texts["drive"], True, (255, 255, 255))
+            box = pg.Surface((text.get_width() + 16, text.get_height() + 10), pg.SRCALPHA)
+            box.fill((0, 0, 0, 170))
+            out.blit(box, (10, 80))
+            out.blit(text, (18, 85))
         band = pg.Surface((w, 56), pg.SRCALPHA)  # behind the status and the hint: readable over fog and grass
         band.fill((0, 0, 0, 150))
         out.blit(band, (0, h - 56))
-        out.blit(self.font.render(status, True, (255, 255, 255)), (10, h - 52))
-        hint = "arrows/WASD: steer, throttle, brake   P: pause   Esc: stop (asks first)"
-        if ego.stop_ahead is not None and ego.stop_ahead < 30.0:
-            hint = f"give way: stop line in {ego.stop_ahead:3.0f} m   " + hint
-        out.blit(self.small.render(hint, True, (230, 230, 230)), (10, h - 22))
+        out.blit(self.font.render(texts["status"], True, (255, 255, 255)), (10, h - 52))
+        out.blit(self.small.render(texts["hint"], True, (230, 230, 230)), (10, h - 22))
 
     def _speed_limit(self, session: Any) -> None:
         """A speed-limit sign (the street's limit: a junction's slower connectors keep the street's sign) and the
@@ -196,6 +199,31 @@ class PlayView:
     def close(self) -> None:
         if self.window:
             self.pygame.display.quit()
+
+
+def hud_texts(session: Any) -> dict[str, str]:
+    """The texts the HUD draws for ``session``: ``prompt`` (the instruction and its distance, while it holds),
+    ``drive`` (the session's counter, e.g. "Drive 2 of 6": its ``progress``, else its ``title``), ``status`` (time,
+    speed, cost unless ``hide_cost``, events) and ``hint`` (the keys; a stop line near). A key is left out when
+    there is nothing to show."""
+    nav = session.nav
+    ev, ego = nav.world.events, nav.world.ego
+    out: dict[str, str] = {}
+    prompt = session.prompt_text()
+    if prompt is not None:
+        out["prompt"] = prompt
+    drive = getattr(session, "progress", None) or getattr(session, "title", None)
+    if drive:
+        out["drive"] = drive
+    cost = "" if getattr(session, "hide_cost", False) else f"cost {nav.tracking_cost:6.0f}   "
+    out["status"] = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}"
+                     f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
+                     f"re-routes {nav.reroutes}")
+    hint = "arrows/WASD: steer, throttle, brake   P: pause   Esc: stop (asks first)"
+    if ego.stop_ahead is not None and ego.stop_ahead < 30.0:
+        hint = f"give way: stop line in {ego.stop_ahead:3.0f} m   " + hint
+    out["hint"] = hint
+    return out
 
 
 def frame_of(session: Any, alpha: float = 1.0) -> Any:

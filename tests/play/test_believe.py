@@ -130,3 +130,22 @@ def test_cli_hide_cost_prints_no_cost_in_the_terminal(belief_study, tmp_path, ca
     out = capsys.readouterr().out
     assert "cost" not in out.replace(str(rec), "") and "your reaction time" in out
     assert "tracking cost" in (rec / "summary.md").read_text()
+
+
+def test_a_windowed_belief_session_keeps_one_window_and_ends_with_thanks(belief_study, monkeypatch):
+    import pygame
+    from play_helpers import watch_session_window
+
+    import pernav.play.believe as believe
+    from pernav.play.screens import CLOSING, FINISHED, WAITING
+
+    seen = watch_session_window(monkeypatch, believe)
+    result = BeliefSession(belief_study, "Town1", [0, 1], n_traffic=0, window=True, hide_cost=True).run()
+    assert not result.interrupted and len(result.drives) == 2
+    (first, _), (second, _) = seen["views"]
+    assert first is second and first.window and not pygame.display.get_init()
+    panels = seen["panels"]
+    assert [WAITING, "the navigation is reading your answers: about 2 s left"] in panels
+    assert [p[0] for p in panels].count(CLOSING) == 1  # reading the last drive: no drive follows
+    assert panels[-1] == [FINISHED, "You drove all 2 drives.", "Press Enter to close"]
+    assert not any("cost" in line for p in panels for line in p)

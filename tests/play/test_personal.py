@@ -157,6 +157,34 @@ def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
     assert "| adapted | 0 | - |" in summary_markdown(summary)
 
 
+def test_a_windowed_session_keeps_one_window_shows_the_wait_and_the_end(study_dir, monkeypatch):
+    import pygame
+    from play_helpers import watch_session_window
+
+    import pernav.play.personal as personal
+    from pernav.play.screens import STOPPED, WAITING
+
+    seen = watch_session_window(monkeypatch, personal)
+    made = []
+
+    def controls():  # the person stops two seconds into their second drive; the third: the end screen's
+        made.append(ScriptedControls(quit_after=20 if len(made) == 1 else None))
+        return made[-1]
+
+    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, n_traffic=0, updates=1, progress=False,
+                             window=True, hide_cost=True).run()
+    assert result.interrupted and len(result.drives) == 2 and len(made) == 3
+    (first, open1), (second, open2) = seen["views"]
+    assert first is second and first.window and open1 and open2  # one window, open across the drives
+    assert not pygame.display.get_init()  # closed at the end
+    panels = seen["panels"]
+    assert panels[0] == [WAITING, "Drive 1 of 3: Town1 route 0"]
+    learning = [p for p in panels if p[1].startswith("the navigation is learning from your drives")]
+    assert learning and learning[0] == [WAITING, "the navigation is learning from your drives: about 4 s left"]
+    assert panels[-1] == [STOPPED, "1 of 3 drives driven; what you drove is kept.", "Press Enter to close"]
+    assert not any("cost" in line for p in panels for line in p)
+
+
 def test_bad_study_folders(study_dir, tmp_path):
     with pytest.raises(PlayError, match="no study folder"):
         load_study(tmp_path / "none", "Town1")
