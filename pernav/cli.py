@@ -13,6 +13,7 @@ Example:
     $ pernav play --town Town1 --route 3 --policy study --study runs/default --tau drives/my-tau.pt
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/
     $ pernav personalize --study runs/default --town Town1 --routes 0 3 5 7 --record drives/me/ --learner belief
+    $ pernav session docs/examples/session.yaml --participant P01 --out sessions/
     $ pernav diagnose planning --routes 3 --paper-routes 0 --json planning_error.json
 """
 
@@ -20,13 +21,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pickle
 import sys
 from pathlib import Path
 from typing import Any
 
+from pernav.cli_session import add_session_parser
 from pernav.planner.factory import parse_planner_options
+from pernav.play.sessions import check_writable
 from pernav.study.config import BELIEF_DEFAULTS, COLLECT, LEARNERS, METHODS, TIMING_DEFAULTS, learner_options
 from pernav.study.errors import CheckpointError
 from pernav.world.constants import PLAYBACK, TOWN_NAMES
@@ -121,30 +123,6 @@ def _check_drive_args(args: argparse.Namespace) -> dict[str, str]:
     return context
 
 
-def _check_writable(option: str, folder: str | Path) -> None:
-    """Write (and remove) a probe file in ``folder`` before anyone drives: a folder that cannot be written is found
-    now, not after the drive. Folders made for the probe are removed again (they are made when a drive is saved)."""
-    folder = Path(folder)
-    made = [p for p in (folder, *folder.parents) if not p.exists()]
-    probe = folder / f".pernav-write-test-{os.getpid()}"
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"pernav")
-    except OSError as exc:
-        raise UsageError(f"{option} {str(folder)!r} cannot be written ({exc.strerror or exc}): nothing was driven"
-                         ) from None
-    finally:
-        try:
-            probe.unlink(missing_ok=True)
-        except OSError:  # under a file: there is no probe to remove
-            pass
-        for p in made:  # deepest first
-            try:
-                p.rmdir()
-            except OSError:
-                break
-
-
 def _open_speaker(args: argparse.Namespace) -> tuple[Any, str | None]:
     """The speaker; without sound (and without --no-audio) a warning in the terminal, and its words for the screen.
     ``--audio`` without a device is an error (exit 2)."""
@@ -237,9 +215,9 @@ def _play(args: argparse.Namespace) -> int:
     history = _history(args)
     study = _study_policy(args)
     if args.record is not None:
-        _check_writable("--record", args.record)
+        check_writable("--record", args.record)
     if args.screenshot is not None:
-        _check_writable("--screenshot", Path(args.screenshot).parent)
+        check_writable("--screenshot", Path(args.screenshot).parent)
     from pernav.play.loop import PlaySession
     from pernav.trainer.drives import save_drive
 
@@ -306,7 +284,7 @@ def _personalize(args: argparse.Namespace) -> int:
                               learner=args.learner, window=not args.headless, announce=print, resume=args.resume,
                               countdown=args.countdown, hide_cost=args.hide_cost,
                               calibrate=args.input == "joystick" and not args.no_calibration)
-    _check_writable("--record", record)
+    check_writable("--record", record)
     session.speaker, session.notice = _open_speaker(args)
     if not args.headless:
         session.controls = _controls(args)  # keyboard controls: made per drive, once its window is open
@@ -329,11 +307,12 @@ def _personalize(args: argparse.Namespace) -> int:
 def _bench(args: argparse.Namespace) -> None:
     from pernav.bench import run_benchmarks
 
-    if args.screenshots is not None and args.which != "play":
-        raise UsageError("--screenshots goes with pernav bench play")
+    for option, given in (("--screenshots", args.screenshots is not None), ("--live", args.live)):
+        if given and args.which != "play":
+            raise UsageError(f"{option} goes with pernav bench play")
     if args.screenshots is not None and not Path(args.screenshots).is_dir():
         raise UsageError(f"--screenshots {args.screenshots!r}: no such folder")
-    figures = run_benchmarks(args.which, quick=args.quick, screenshots=args.screenshots)
+    figures = run_benchmarks(args.which, quick=args.quick, screenshots=args.screenshots, live=args.live)
     if args.json:
         print(json.dumps(figures, indent=2))
     for name, fig in ({} if args.json else figures).items():
@@ -471,9 +450,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.add_argument("--quick", action="store_true", help="shorter measurement (for smoke tests)")
     p.add_argument("--screenshots", metavar="DIR", help="with play: save a picture of each view in this folder")
+    p.add_argument("--live", action="store_true", help="with play: drive each view in a real window paced to real "
+                   "time (the display in DISPLAY, e.g. Xvfb; without one SDL's dummy driver, said so in the result)")
     p.set_defaults(func=_bench)
 
     _add_study_parser(sub)
+    add_session_parser(sub)
 
     p = sub.add_parser("judge", help="the personal benchmark's pre-registered figures of a learner (docs/personal.md)")
     p.add_argument("studies", nargs="+", help="study folders (or results.json files) of the personal preset; "

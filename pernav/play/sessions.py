@@ -9,6 +9,7 @@ Example:
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from pernav.play.loop import PlayError
 from pernav.world.constants import TOWN_NAMES
 from pernav.world.towns import get_town
 
-__all__ = ["SESSION_FILES", "check_session"]
+__all__ = ["SESSION_FILES", "check_session", "check_writable"]
 
 #: what a session writes beside its drives (a folder holding one of them holds a session)
 SESSION_FILES = ("session.json", "summary.json", "summary.md", "model.pt", "belief.pt")
@@ -51,3 +52,27 @@ def check_session(town: str, routes: Sequence[int], seed: int, record_dir: str |
             raise PlayError(f"--resume: record folder {str(folder)!r} holds no personalization session "
                             "to resume (no session.json)")
     return folder
+
+
+def check_writable(option: str, folder: str | Path) -> None:
+    """Write (and remove) a probe file in ``folder`` before anyone drives: a folder that cannot be written is found
+    now, not after the drive. Folders made for the probe are removed again (they are made when a drive is saved)."""
+    folder = Path(folder)
+    made = [p for p in (folder, *folder.parents) if not p.exists()]
+    probe = folder / f".pernav-write-test-{os.getpid()}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"pernav")
+    except OSError as exc:
+        raise PlayError(f"{option} {str(folder)!r} cannot be written ({exc.strerror or exc}): nothing was driven"
+                         ) from None
+    finally:
+        try:
+            probe.unlink(missing_ok=True)
+        except OSError:  # under a file: there is no probe to remove
+            pass
+        for p in made:  # deepest first
+            try:
+                p.rmdir()
+            except OSError:
+                break
