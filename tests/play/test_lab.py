@@ -179,3 +179,9 @@ def test_the_command_line_checks_and_runs_a_session(tmp_path, capsys):
     bad.write_text("participants: [P1]\nblocks: [{name: a, routes: [0], weather: foggy}]\n")
     assert main(["session", str(bad), "--check"]) == 2
     assert "the weather is `visual`" in capsys.readouterr().err
+
+
+def test_the_documented_example_session_file_is_valid():
+    plan = load_plan(ROOT / "docs" / "examples" / "session.yaml")
+    assert plan.practice is not None and len(plan.blocks) == 2 and len(plan.questions) == 2
+    assert [drive_list(plan, p)[1].block for p in plan.participants] == ["explore", "oracle", "explore", "oracle"]
