@@ -237,6 +237,7 @@ class NavigationEnv(gym.Env):
         self._played: list[tuple[int, float, int]] = []  # (instruction, route progress, reroutes)
         self.tracking_cost = 0.0
         self.frames = np.zeros((self.config["frequency"], len(FRAME_KEYS)), dtype=np.float32)
+        self.last_frame: tuple[float, ...] = (0.0,) * len(FRAME_KEYS)  # the frame sensed last (FRAME_KEYS)
         self.prompt_start = self.prompt_end = -1.0  # simulated time a prompt played this step began / its audio ended
         self.missed_turns = self.wrong_turns = self.reroutes = 0
         self._rerouted_in: str | None = None  # the cross junction of the last re-plan (None: none, or elsewhere)
@@ -274,7 +275,7 @@ class NavigationEnv(gym.Env):
         frames = np.empty_like(self.frames)
         for k in range(self.config["frequency"]):
             self.world.frame()
-            frames[k] = self._sense()
+            frames[k] = self.last_frame = self._sense()  # last_frame: what a frame's callback may read
             if self.on_frame is not None:
                 self.on_frame()
         self.frames = frames

@@ -158,10 +158,10 @@ class DriveLog:
         """The world frame just computed by ``nav`` (a NavigationEnv) and the controls the car got (~10 us)."""
         world = nav.world
         ego, events = world.ego, world.events
-        # the env's own sensing function, on the same state it just sensed: the log's frames are tau's frames
+        # the env's own sensing of this frame, as it wrote it into tau: the log's frames are tau's frames
         self.frames.append(_Frame(time.time(), time.perf_counter() - self.clock, world.time, tap.keys, tap.inputs,
                                   tap.axes, float(ego.position[0]), float(ego.position[1]), float(ego.heading),
-                                  nav._sense(), events.vehicle_collisions, events.edge_strikes))
+                                  nav.last_frame, events.vehicle_collisions, events.edge_strikes))
 
 
 def _identity(meta: Mapping[str, Any], defaults: Mapping[str, Any] | None = None) -> dict[str, Any]:

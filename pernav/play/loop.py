@@ -247,7 +247,7 @@ class PlaySession:
         self.frames = 0
         self.shot: Path | None = None
         self.log = DriveLog(frequency)  # the lab's record of the drive (pernav.play.framelog)
-        self._tap = InputTap(self.controls)  # the car's controls keeping, for the log, what the car got each frame
+        self._tap: InputTap | None = None  # the car's controls in a drive, keeping for the log what it got each frame
 
     # ----- what the window shows ---------------------------------------------------------------------
     def interpolated(self, alpha: float) -> dict[int, tuple[np.ndarray, float]]:
