@@ -480,7 +480,7 @@ class LabSession:
                               countdown=self.plan.countdown, title=title, hide_cost=self.plan.hide_cost,
                               notice=self.notice, view=self.view, progress=title.split(":")[0])
         if self.controls is not None:
-            session.controls = self.controls() if isinstance(self.controls, type) else self.controls
+            session.controls = self._make_controls()
         try:
             result = session.run()
         finally:
@@ -559,10 +559,11 @@ class LabSession:
         from pernav.play.screens import FINISHED, STOPPED, show_finished
 
         if not result.ctrl_c:  # after Ctrl-C the person at the terminal wants out
-            show_finished(self.view, ["Please tell the experimenter."], controls=self._end_controls(),
+            show_finished(self.view, ["Please tell the experimenter."], controls=self._make_controls(),
                           heading=FINISHED if result.finished else STOPPED)
 
-    def _end_controls(self) -> Any:
+    def _make_controls(self) -> Any:
+        """The person's controls (keyboard controls are a class, made once the window is open), or None."""
         if self.controls is None:
             return None
         return self.controls() if isinstance(self.controls, type) else self.controls
