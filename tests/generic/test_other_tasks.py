@@ -148,6 +148,7 @@ def test_ftml_trains_on_short_random_episodes_beside_longer_ones():
             T = 13 if e == 1 else int(torch.randint(9, 14, (), generator=g))
             buffers.add(r, _numbered(start, T), tau=e == 0)
             start += T
+    torch.manual_seed(0)  # the model's initial weights: from the global RNG, which earlier tests in a worker move
     model = DynamicsModel(state_dim=4, n_actions=2, K=1, hidden=(8,), delta="plain")
     trainer = FTMLTrainer(model, buffers, TrainConfig(batch=8, L=10, K=1, hidden=[8]), seed=0)
     trainer.fit_normalization()
