@@ -503,25 +503,29 @@ def bench_timing(quick: bool = False) -> dict[str, Any]:
 
 def bench_belief(quick: bool = False) -> dict[str, Any]:
     """The belief learner (:mod:`pernav.model.belief`) inside a drive: per step, the tracker's update (reading each
-    answer whose window closed; the step's work beside the world's frames) and the prompt decision of the rule
-    re-timed for the belief it gives, against explore's rule on the same states. The detector is untrained (its
-    cost does not depend on its weights)."""
+    answer whose window closed and each announced junction's outcome; the step's work beside the world's frames) and
+    the prompt decision of the rule re-timed for the belief it gives, against explore's rule on the same states. The
+    belief is the joint one (reaction and decision time); the detectors are untrained (their cost does not depend on
+    their weights)."""
     import time
 
     from pernav.env.navigation import NavigationEnv
     from pernav.env.policies import belief_policy, explore_policy
-    from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
+    from pernav.model.belief import AnswerDetector, BeliefTracker, DecisionPrior, ReactionBelief
+    from pernav.model.outcomes import SwerveDetector
 
     env = NavigationEnv("Town3", config={"n_traffic": 8})
     _, info = env.reset(seed=0, options={"route": 1, "user": "user3"})
-    tracker = BeliefTracker(AnswerDetector(), ReactionBelief(0.3, 0.4))
+    decision = DecisionPrior(mean=2.4, sd=0.7, hit=0.4, false=0.05)
+    tracker = BeliefTracker(AnswerDetector(), ReactionBelief(0.3, 0.4, decision=decision), swerve=SwerveDetector())
     explore = explore_policy()
     update_ms, moved_ms, decision_ms, explore_ms = [], [], [], []
     for _ in range(60 if quick else 150):
         action = int(info["explore_action"])
         _, _, terminated, truncated, info = env.step(action)
         t0 = time.perf_counter()
-        moved = tracker.observe(action, bool(info["played"]), info["prompt_end"], info["frames"], info["time"])
+        moved = tracker.observe(action, bool(info["played"]), info["prompt_end"], info["frames"], info["time"],
+                                info["distance_to_junction"], info["missed_turns"])
         rule = belief_policy(tracker.fields()) if moved else None
         (moved_ms if moved else update_ms).append(time.perf_counter() - t0)
         view = env.nav_view()
@@ -532,7 +536,8 @@ def bench_belief(quick: bool = False) -> dict[str, Any]:
     return {
         "update_ms_median": _median_ms(update_ms),
         "answer_read_ms_median": _median_ms(moved_ms) if moved_ms else None,
-        "answers_read": len(moved_ms),
+        "answers_read": tracker.belief.answers,
+        "outcomes_read": tracker.belief.outcomes,
         "decision_ms_median": _median_ms(decision_ms),
         "decision_vs_explore_ratio": round(_median_ms(decision_ms) / max(_median_ms(explore_ms), 1e-9), 2),
         "target": "decision_ms_median <= 15, answer_read_ms_median <= 50",

@@ -507,7 +507,7 @@ def _study(args: argparse.Namespace) -> None:
         cfg.methods = [m for m in METHODS if m in args.methods]
     try:
         learner_options(args.timing_option, cfg.timing, "timing", ("offline_drivers",))
-        learner_options(args.belief_option, cfg.belief, "belief", ("offline_drivers", "guard"))
+        learner_options(args.belief_option, cfg.belief, "belief", ("offline_drivers", "guard", "decision"))
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     if args.collect is not None:

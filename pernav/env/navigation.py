@@ -292,7 +292,8 @@ class NavigationEnv(gym.Env):
         truncated = not arrived and self.time >= self.time_limit
         self.goal = self.route.goal_waypoint(self.progress, float(ego.speed))
         if self.tracker is not None:  # the belief reads this step's answer, and the rest once the drive ends
-            moved = self.tracker.observe(instruction, played, self.prompt_end, self.frames, self.time)
+            moved = self.tracker.observe(instruction, played, self.prompt_end, self.frames, self.time,
+                                         self.junction_info()["distance_to_junction"], self.missed_turns)
             if arrived or truncated:
                 moved = self.tracker.finish() or moved
             if moved:

@@ -184,8 +184,10 @@ class BeliefSource(Protocol):
     def copy(self) -> BeliefSource:
         """A copy for a new drive of the same user: the belief so far, no frames of this drive."""
 
-    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float) -> bool:
-        """One step's prompt and the car's frames; True when the belief moved."""
+    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float,
+                junction: float | None = None, missed: int | None = None) -> bool:
+        """One step's prompt, the car's frames, the distance to the next decision junction and the missed-turn count
+        (what the navigation itself knows); True when the belief moved."""
 
     def finish(self) -> bool:
         """The drive ended; True when the belief moved."""

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -44,11 +45,12 @@ import torch
 from torch import nn
 
 from pernav.env.policies import explore_policy
-from pernav.world.constants import PREPARES, SIDED
+from pernav.model.outcomes import DECISION_GRID, SwerveDetector, turn_outcomes
+from pernav.world.constants import PREPARES, SIDED, TURNS
 from pernav.world.drivers import REACTION_CV
 
 __all__ = ["ANSWERED", "ANSWER_SPAN", "N_FRAME_FEATURES", "Answer", "AnswerDetector", "BeliefTracker",
-           "ReactionBelief", "answers_of", "frame_features", "frame_series"]
+           "DecisionPrior", "ReactionBelief", "answers_of", "frame_features", "frame_series", "late_probability"]
 
 #: the prompts whose answer the belief reads: "turn" and "prepare" (left, right)
 ANSWERED = SIDED
@@ -203,23 +205,36 @@ class AnswerDetector(nn.Module):
 
 
 class ReactionBelief:
-    """A posterior over the driver's mean reaction time ``R`` on a grid of ``log R``.
+    """A posterior over the driver's mean reaction time ``R`` on a grid of ``log R``, and, given a ``decision`` prior,
+    jointly over its decision time ``D`` (s before a junction at which it commits to a branch) on a grid of ``D``.
 
     Args:
         prior_mean, prior_sd: the population prior of ``log R`` (normal).
         noise: SD (log s) of the detector's timing beside the prompt's own draw; ``outlier``: the share of answers read
             from a frame that is not the prompt's (both fitted for coverage on development drivers).
         quantile: posterior SDs above the mean that the prompt rules act on.
+        decision: ``None`` (``D`` not tracked) or the population prior of ``D`` and how its outcomes show
+            (:class:`DecisionPrior`).
+        drift: SD (log s) of a driver's own reading error: the frames of one driver (its vehicle, its way of braking)
+            may read its answers earlier or later by the same factor in every drive, so the posterior about ``R``
+            never narrows below it (the likelihood is smoothed along ``log R`` by it; fitted for the interval's
+            coverage on development drivers). 0: every answer's error independent.
     """
 
     GRID = torch.linspace(math.log(0.3), math.log(6.0), 241, dtype=torch.float64)
+    D_GRID = DECISION_GRID
 
     def __init__(self, prior_mean: float, prior_sd: float, noise: float = 0.15, outlier: float = 0.3,
-                 quantile: float = 1.0) -> None:
+                 quantile: float = 1.0, decision: DecisionPrior | None = None, drift: float = 0.0) -> None:
         self.prior_mean, self.prior_sd = float(prior_mean), float(prior_sd)
         self.noise, self.outlier, self.quantile = float(noise), float(outlier), float(quantile)
-        self.log_post = -0.5 * ((self.GRID - self.prior_mean) / self.prior_sd) ** 2
+        self.decision, self.drift = decision, float(drift)
+        # the prior times every answer's and outcome's likelihood (without the driver's own reading error)
+        self.log_post = self._log_prior()
+        if decision is not None:  # [G, H]: log R by D
+            self.log_post = self.log_post[:, None] + decision.log_prior(self.D_GRID)[None]
         self.answers = 0
+        self.outcomes = 0
 
     # ----- evidence ------------------------------------------------------------------------------
     def update(self, delays: torch.Tensor, probs: torch.Tensor, none: float) -> None:
@@ -238,13 +253,50 @@ class ReactionBelief:
         beyond = 0.5 * torch.erfc((math.log(float(d[-1]) + DT / 2) - mu[:, 0]) / (s * math.sqrt(2)))  # [G]
         likelihood = ((1 - self.outlier) * (probs.double()[None] * in_frame).sum(1)
                       + none * (self.outlier + (1 - self.outlier) * beyond))
-        self.log_post = self.log_post + likelihood.clamp(min=1e-300).log()
+        log_l = likelihood.clamp(min=1e-300).log()
+        self.log_post = self.log_post + (log_l if self.log_post.dim() == 1 else log_l[:, None])
         self.answers += 1
 
+    def update_turn(self, room: torch.Tensor, late: bool) -> None:
+        """One announced junction's outcome (:class:`~pernav.model.outcomes.TurnOutcome`): ``room`` ``[H]``, for each
+        decision time of :attr:`D_GRID`, the time from its first "turn" prompt's audio end to that driver's commit, and
+        whether a swerve or a miss followed (``late``).
+
+        The prompt is late when its delay (lognormal around ``R``) exceeds ``room``; a late prompt shows as a swerve or
+        a miss with probability ``hit`` (not when a followed "prepare" had already chosen the branch), an in-time one
+        with probability ``false`` (:class:`DecisionPrior`, fitted offline). No-op without a decision prior."""
+        if self.decision is None:
+            return
+        p_late = late_probability(self.GRID, room)  # [G, H]
+        p_show = self.decision.false + (self.decision.hit - self.decision.false) * p_late
+        self.log_post = self.log_post + (p_show if late else 1 - p_show).clamp(min=1e-300).log()
+        self.outcomes += 1
+
     # ----- what it says --------------------------------------------------------------------------
-    def weights(self) -> torch.Tensor:
-        w = torch.exp(self.log_post - self.log_post.max())
+    def _log_prior(self) -> torch.Tensor:
+        return -0.5 * ((self.GRID - self.prior_mean) / self.prior_sd) ** 2
+
+    def joint(self) -> torch.Tensor:
+        """The posterior's weights: ``[G]`` over ``log R``, or ``[G, H]`` over ``log R`` by ``D``."""
+        if self.drift > 0.0:  # the prior times the likelihood smoothed along log R by the driver's reading error
+            prior = self._log_prior()
+            prior = prior if self.log_post.dim() == 1 else prior[:, None]
+            likelihood = self.log_post - prior
+            w = torch.exp(prior - prior.max()) * (_drift_kernel(self.drift) @ torch.exp(likelihood - likelihood.max()))
+        else:
+            w = torch.exp(self.log_post - self.log_post.max())
         return w / w.sum()
+
+    def weights(self) -> torch.Tensor:
+        """The posterior's weights over ``log R`` (``[G]``; ``D`` summed out)."""
+        w = self.joint()
+        return w if w.dim() == 1 else w.sum(1)
+
+    def decision_weights(self) -> torch.Tensor:
+        """The posterior's weights over ``D`` (``[H]``); raises without a decision prior."""
+        if self.decision is None:
+            raise ValueError("this belief tracks no decision time (no decision prior)")
+        return self.joint().sum(0)
 
     @property
     def mean(self) -> float:
@@ -257,44 +309,123 @@ class ReactionBelief:
         w = self.weights()
         return float(((w * (self.GRID - self.mean) ** 2).sum()).sqrt())
 
+    @property
+    def decision_mean(self) -> float:
+        """Posterior mean of ``D`` (s)."""
+        return float((self.decision_weights() * self.D_GRID).sum())
+
+    @property
+    def decision_sd(self) -> float:
+        """Posterior SD of ``D`` (s)."""
+        w = self.decision_weights()
+        return float(((w * (self.D_GRID - self.decision_mean) ** 2).sum()).sqrt())
+
     def mean_reaction(self) -> float:
         """The posterior median of ``R`` (s): ``exp`` of the mean of ``log R``."""
         return math.exp(self.mean)
 
     def interval(self, level: float = 0.9) -> tuple[float, float]:
         """The central ``level`` credible interval of ``R`` (s)."""
-        c = torch.cumsum(self.weights(), 0)
-        lo = int(torch.searchsorted(c, torch.tensor((1 - level) / 2, dtype=c.dtype)))
-        hi = int(torch.searchsorted(c, torch.tensor((1 + level) / 2, dtype=c.dtype)))
-        return math.exp(float(self.GRID[lo])), math.exp(float(self.GRID[min(hi, len(self.GRID) - 1)]))
+        lo, hi = _central(self.weights(), self.GRID, level)
+        return math.exp(lo), math.exp(hi)
+
+    def decision_interval(self, level: float = 0.9) -> tuple[float, float]:
+        """The central ``level`` credible interval of ``D`` (s)."""
+        return _central(self.decision_weights(), self.D_GRID, level)
 
     def belief(self, guard: bool = True) -> dict[str, Any]:
-        """What the prompt rules act on (:func:`pernav.env.policies.belief_policy`): ``{}`` (explore's timing) when
-        the posterior's upper value (``quantile`` SDs above the mean) is no later than explore's average driver;
-        else that reaction time and, with ``guard``, the quickest driver the posterior allows (its lower value,
-        never slower than the average driver, at the 5th percentile of one prompt's draw)."""
+        """What the prompt rules act on (:func:`pernav.env.policies.belief_policy`).
+
+        The reaction time: explore's timing (no entry) when the posterior's upper value (``quantile`` SDs above the
+        mean) is no later than explore's average driver's, else that upper value and, with ``guard``, the quickest
+        driver the posterior allows (its lower value, never slower than the average driver, at the 5th percentile of
+        one prompt's draw). The decision time (with a decision prior): explore's average driver's, later by as much
+        as the posterior's upper value of ``D`` has risen above the prior's; turn outcomes that show no lateness
+        never make it earlier than explore's."""
         average = explore_policy().driver
+        belief: dict[str, Any] = {}
         upper = math.exp(self.mean + self.quantile * self.sd)
-        if upper <= average.reaction_time:
-            return {}
-        belief: dict[str, Any] = {"reaction_time": round(upper, 4)}
-        if guard:
-            low = min(math.exp(self.mean - self.quantile * self.sd), average.reaction_time)
-            quick = dataclasses.replace(average, reaction_time=low)
-            belief["fastest"] = {"reaction_time": round(quick.reaction_draw(-1.645), 4),
-                                 "decision_time": average.decision_time}
+        if upper > average.reaction_time:
+            belief["reaction_time"] = round(upper, 4)
+            if guard:
+                low = min(math.exp(self.mean - self.quantile * self.sd), average.reaction_time)
+                quick = dataclasses.replace(average, reaction_time=low)
+                belief["fastest"] = {"reaction_time": round(quick.reaction_draw(-1.645), 4),
+                                     "decision_time": average.decision_time}
+        if self.decision is not None and self.outcomes:
+            rise = (self.decision_mean + self.quantile * self.decision_sd) - self.decision.upper(self.quantile)
+            if rise > 0.0:
+                belief["decision_time"] = round(average.decision_time + rise, 4)
         return belief
 
     def state_dict(self) -> dict[str, Any]:
         return {"prior_mean": self.prior_mean, "prior_sd": self.prior_sd, "noise": self.noise,
                 "outlier": self.outlier, "quantile": self.quantile, "log_post": self.log_post.clone(),
-                "answers": self.answers}
+                "answers": self.answers, "outcomes": self.outcomes, "drift": self.drift,
+                "decision": None if self.decision is None else dataclasses.asdict(self.decision)}
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> ReactionBelief:
-        out = cls(state["prior_mean"], state["prior_sd"], state["noise"], state["outlier"], state["quantile"])
+        decision = state.get("decision")
+        out = cls(state["prior_mean"], state["prior_sd"], state["noise"], state["outlier"], state["quantile"],
+                  None if decision is None else DecisionPrior(**decision), float(state.get("drift", 0.0)))
         out.log_post, out.answers = state["log_post"].clone(), int(state["answers"])
+        out.outcomes = int(state.get("outcomes", 0))
         return out
+
+
+def late_probability(log_r: torch.Tensor, room: torch.Tensor) -> torch.Tensor:
+    """``[G, H]``: the probability that a prompt's delay (lognormal around ``exp(log_r)``, one prompt's draw) exceeds
+    each ``room`` (s; at or below zero: certainly)."""
+    mu = log_r.double()[:, None] - SIGMA**2 / 2
+    room = room.double()[None]
+    z = (room.clamp(min=1e-3).log() - mu) / SIGMA
+    return torch.where(room > 0, 0.5 * torch.erfc(z / math.sqrt(2)), torch.ones_like(z))
+
+
+@functools.lru_cache(maxsize=4)
+def _drift_kernel(drift: float) -> torch.Tensor:
+    """``[G, G]``: row ``i`` the normal density (SD ``drift``) of a read ``log R`` around grid point ``i``, normalized
+    on the grid."""
+    grid = ReactionBelief.GRID
+    k = torch.exp(-0.5 * ((grid[None] - grid[:, None]) / drift) ** 2)
+    return k / k.sum(1, keepdim=True)
+
+
+def _central(weights: torch.Tensor, grid: torch.Tensor, level: float) -> tuple[float, float]:
+    """The central ``level`` interval of a distribution on a grid (its grid points)."""
+    c = torch.cumsum(weights, 0)
+    lo = int(torch.searchsorted(c, torch.tensor((1 - level) / 2, dtype=c.dtype)))
+    hi = int(torch.searchsorted(c, torch.tensor((1 + level) / 2, dtype=c.dtype)))
+    return float(grid[min(lo, len(grid) - 1)]), float(grid[min(hi, len(grid) - 1)])
+
+
+@dataclass(frozen=True)
+class DecisionPrior:
+    """The population prior of the decision time ``D`` (normal, s) and how a "turn" prompt's lateness shows, all
+    fitted offline on simulated drivers (:func:`pernav.trainer.answers.fit_belief`): ``hit``, the probability that a
+    prompt past the commit point shows a swerve or a miss; ``false``, that an in-time one seems to.
+
+    >>> prior = DecisionPrior(mean=2.0, sd=0.6, hit=0.6, false=0.01)
+    >>> round(prior.upper(1.0), 2)
+    2.6
+    """
+
+    mean: float
+    sd: float
+    hit: float
+    false: float
+
+    def log_prior(self, grid: torch.Tensor) -> torch.Tensor:
+        return -0.5 * ((grid - self.mean) / self.sd) ** 2
+
+    def upper(self, quantile: float) -> float:
+        """The prior's mean plus ``quantile`` SDs, on :attr:`ReactionBelief.D_GRID` (where the grid cuts it)."""
+        grid = ReactionBelief.D_GRID
+        w = torch.exp(self.log_prior(grid))
+        w = w / w.sum()
+        mean = float((w * grid).sum())
+        return mean + quantile * float(((w * (grid - mean) ** 2).sum()).sqrt())
 
 
 class BeliefTracker:
@@ -307,40 +438,79 @@ class BeliefTracker:
     2.0
     """
 
-    def __init__(self, detector: AnswerDetector, belief: ReactionBelief, guard: bool = True) -> None:
-        self.detector, self.belief, self.guard = detector, belief, bool(guard)
+    def __init__(self, detector: AnswerDetector, belief: ReactionBelief, guard: bool = True,
+                 swerve: SwerveDetector | None = None) -> None:
+        self.detector, self.belief, self.guard, self.swerve = detector, belief, bool(guard), swerve
         self.reset()
 
     def reset(self) -> None:
         """Start a new drive (the belief carries over; the drive's frames and prompts do not)."""
         self.frames: list[torch.Tensor] = []
         self.ends: list[float] = []
+        self.junction: list[float] = []  # per step: distance to the next decision junction after it (m)
+        self.missed: list[float] = []  # per step: the navigation's missed-turn count after it
         self.prompts: list[tuple[int, float]] = []  # (instruction, audio end) played
         self.read: set[float] = set()  # audio ends of the prompts whose answer was read
+        self.judged: set[float] = set()  # audio ends of the "turn" prompts whose junction's outcome was read
+        self.passed: set[int] = set()  # steps in which the car passed a junction whose outcome was read
         self.trace: list[tuple[float, float, float]] = []  # (time, mean R, sd of log R) after each update
 
-    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float) -> bool:
-        """One step: the action's instruction, whether it played, its audio's end, the step's frames ``[F, C]`` and
-        the simulated time at its end. Reads every answer whose window has closed; True when the belief moved."""
+    def observe(self, instruction: int, played: bool, prompt_end: float, frames: Any, step_end: float,
+                junction: float | None = None, missed: int | None = None) -> bool:
+        """One step: the action's instruction, whether it played, its audio's end, the step's frames ``[F, C]``, the
+        simulated time at its end and, for the decision time, the distance to the next decision junction after it
+        and the navigation's missed-turn count. Reads every answer whose window has closed and every announced
+        junction's outcome once it shows; True when the belief moved."""
         if played:
             self.prompts.append((int(instruction), float(prompt_end)))
         self.frames.append(torch.as_tensor(frames, dtype=torch.float32))
         self.ends.append(float(step_end))
-        return self._read(complete=True)
+        self.junction.append(math.inf if junction is None else float(junction))
+        self.missed.append(0.0 if missed is None else float(missed))
+        moved = self._read(complete=True)
+        return self._judge(complete=True) or moved
 
     def finish(self) -> bool:
-        """The drive ended: read the answers whose window the drive cut short."""
-        return self._read(complete=False)
+        """The drive ended: read the answers whose window the drive cut short, and the junctions' outcomes."""
+        moved = self._read(complete=False)
+        return self._judge(complete=False) or moved
 
     def observe_drive(self, trajectory: Any) -> None:
         """Read a whole ``[T]`` drive (a tau: the env's ``("next", ...)`` entries of what it played and sensed) as a
         new drive of this driver."""
         self.reset()
         step = trajectory["next"]
+        outcomes = self.swerve is not None and "distance_to_junction" in step.keys()
         for t in range(trajectory.shape[0]):
             self.observe(int(trajectory["action"][t]), bool(step["played"][t]), float(step["prompt_end"][t]),
-                         step["frames"][t], float(step["time"][t]))
+                         step["frames"][t], float(step["time"][t]),
+                         float(step["distance_to_junction"][t]) if outcomes else None,
+                         int(step["missed_turns"][t]) if outcomes else None)
         self.finish()
+
+    def _judge(self, complete: bool) -> bool:
+        """The outcome of each junction announced by a "turn" prompt (:func:`~pernav.model.outcomes.turn_outcomes`)."""
+        if self.swerve is None or self.belief.decision is None or math.isinf(self.junction[-1] if self.junction else 0):
+            return False
+        pending = [(i, e) for i, e in self.prompts if i in TURNS and e not in self.judged]
+        if not pending:
+            return False
+        start = max(next((t for t, end in enumerate(self.ends) if end > pending[0][1]), len(self.ends)) - 1, 0)
+        frames = torch.stack(self.frames[start:])
+        with torch.no_grad():
+            swerve = self.swerve(frames)
+        outcomes = turn_outcomes(pending, torch.tensor(self.ends[start:]), torch.tensor(self.junction[start:]),
+                                 torch.tensor(self.missed[start:]), swerve, frames, complete=complete)
+        moved = False
+        for outcome in outcomes:
+            self.judged.add(outcome.end)
+            if outcome.step + start in self.passed:  # a later prompt for a junction already judged
+                continue
+            self.passed.add(outcome.step + start)
+            self.belief.update_turn(outcome.room, outcome.late)
+            self.trace.append((float(self.ends[-1]), self.belief.mean_reaction(), self.belief.sd))
+            moved = True
+        return moved
 
     def _read(self, complete: bool) -> bool:
         pending = [k for k, (i, e) in enumerate(self.prompts) if i in ANSWERED and e not in self.read]
@@ -365,6 +535,20 @@ class BeliefTracker:
 
     def fields(self) -> dict[str, Any]:
         return self.belief.belief(self.guard)
+
+    @classmethod
+    def from_model(cls, model: Mapping[str, Any], guard: bool = True,
+                   posterior: Mapping[str, Any] | None = None) -> BeliefTracker:
+        """A tracker from a study's fitted belief (``{"detector", "prior", "swerve"}``: state dicts; ``swerve`` may be
+        ``None`` or absent), starting from ``posterior`` (a :class:`ReactionBelief` state dict) or the prior."""
+        detector = AnswerDetector()
+        detector.load_state_dict(model["detector"])
+        swerve = None
+        if model.get("swerve") is not None:
+            swerve = SwerveDetector()
+            swerve.load_state_dict(model["swerve"])
+        belief = ReactionBelief.from_state_dict(model["prior"] if posterior is None else posterior)
+        return cls(detector, belief, guard=guard, swerve=swerve)
 
     def copy(self) -> BeliefTracker:
         """A copy for another drive of the same driver (the detector is shared: it does not change)."""

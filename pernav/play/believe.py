@@ -24,7 +24,7 @@ import torch
 
 from pernav.env.policies import belief_policy
 from pernav.env.torchrl_env import info_action_module
-from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
+from pernav.model.belief import BeliefTracker
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlaySession
 from pernav.play.personal import PersonalResult, _policy_row, study_settings, summary_markdown
@@ -89,10 +89,8 @@ class BeliefSession:
             model = final_belief(study_dir, town)
         except CheckpointError as exc:
             raise PlayError(str(exc)) from None
-        detector = AnswerDetector()
-        detector.load_state_dict(model["detector"])
         guard = bool({**BELIEF_DEFAULTS, **(config.get("belief") or {})}["guard"])
-        self.tracker = BeliefTracker(detector, ReactionBelief.from_state_dict(model["prior"]), guard=guard)
+        self.tracker = BeliefTracker.from_model(model, guard=guard)
         self.study, self.town, self.seed = str(study_dir), town, int(seed)
         self.user, self.context, self.n_traffic = user, context, int(n_traffic)
         self.controls, self.window, self.speaker = controls, window, speaker

@@ -37,7 +37,7 @@ from pernav.world.drivers import resolve
 
 __all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
            "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
-           "plot_sweep_leads", "preregistration", "repeat_schedule", "spearman"]
+           "plot_sweep_leads", "preregistration", "repeat_schedule", "second_look", "spearman"]
 
 #: the sweep's study seeds for this look (fresh: never run before this pre-registration)
 SWEEP_SEEDS = (200, 201, 202, 203)
@@ -77,6 +77,15 @@ HEADROOM_FRESH_TARGETS: dict[str, Any] = {
 }
 
 
+#: the second look (one each, fixed before it ran): the learner changed after the first looks, so the two looks
+#: that judge "follows the driver" and "serves both halves" run again on fresh seeds with it. What changed: a posterior
+#: over the decision time too (``decision``) and a driver's own reading error (``drift``), both chosen on development
+#: drivers only (docs/research/scripts/belief_dev.py, seeds 9105-9108)
+SECOND_LOOK_CHANGES: dict[str, Any] = {"decision": 1, "drift": 0.1}
+SECOND_LOOK_SWEEP_SEEDS = (210, 211, 212, 213)
+SECOND_LOOK_SPLIT_SEEDS = tuple(range(116, 132))
+
+
 def repeat_schedule() -> list[Entry]:
     """The ``repeat`` preset's schedule: the offline rounds, then :data:`REPEAT_DRIVES` rounds of each of
     :data:`REPEAT_DRIVERS` slow and as many quick drivers (``Population(seed=REPEAT_POPULATION_SEED)``), the drivers
@@ -103,6 +112,18 @@ def preregistration() -> dict[str, Any]:
                        "cells": classify(repeat_schedule(), towns)},
             "headroom": {"preset": "personal", "seeds": list(HEADROOM_FRESH_SEEDS), "targets": HEADROOM_FRESH_TARGETS,
                          "cells": classify(personal_schedule(), towns)}}
+
+
+def second_look() -> dict[str, Any]:
+    """The second look at the changed learner, as fixed before it ran (JSON-ready): the sweep and the split benchmark
+    on fresh seeds, the same targets as their first looks, with the learner's options as committed."""
+    from pernav.study.config import BELIEF_DEFAULTS
+    from pernav.study.headroom import SPLIT_TARGETS
+
+    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "changed": SECOND_LOOK_CHANGES, "one_look": True,
+            "look": 2, "sweep": {"preset": "personal_sweep", "seeds": list(SECOND_LOOK_SWEEP_SEEDS),
+                                 "targets": SWEEP_TARGETS},
+            "split": {"preset": "split", "seeds": list(SECOND_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
 
 
 def spearman(x: list[float], y: list[float]) -> float:

@@ -39,7 +39,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
-from pernav.model.belief import AnswerDetector, BeliefTracker, ReactionBelief
+from pernav.model.belief import BeliefTracker
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.model.timing import TARGETS as TIMING_TARGETS
@@ -432,26 +432,30 @@ def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
     drives = labelled_drives(town, int(options["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
                              derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic},
                              progress=True)
-    detector, prior = fit_belief(drives, noise=options["noise"], outlier=options["outlier"],
-                                 quantile=options["quantile"])
-    return {"detector": detector.state_dict(), "prior": prior.state_dict()}
+    detector, prior, swerve = fit_belief(drives, decision=bool(options.get("decision", 0)), noise=options["noise"],
+                                         outlier=options["outlier"], quantile=options["quantile"],
+                                         drift=options.get("drift", 0.0))
+    return {"detector": detector.state_dict(), "prior": prior.state_dict(),
+            "swerve": None if swerve is None else swerve.state_dict()}
 
 
 def _read_tau(cfg: StudyConfig, state: RunState, entry: Entry, tau: Any) -> BeliefTracker:
     """The belief learner's posterior about ``entry``'s user after this round's tau: the prior, or what the earlier
     rounds of the same user left (the belief persists across drives), updated with each of tau's answers."""
     model, user = state.belief_model, _user_key(entry)
-    detector = AnswerDetector()
-    detector.load_state_dict(model["detector"])
     posteriors = state.belief_posteriors
-    belief = ReactionBelief.from_state_dict(posteriors.get(user, model["prior"]))
-    tracker = BeliefTracker(detector, belief, guard=bool(cfg.belief["guard"]))
+    tracker = BeliefTracker.from_model(model, guard=bool(cfg.belief["guard"]), posterior=posteriors.get(user))
     tracker.observe_drive(tau)
     posteriors[user] = tracker.belief.state_dict()
     low, high = tracker.belief.interval(0.9)
     state.belief_rounds[entry.label] = {
         "reaction_time": round(tracker.belief.mean_reaction(), 4), "interval": [round(low, 4), round(high, 4)],
         "answers": tracker.belief.answers, "acted_on": tracker.fields()}
+    if tracker.belief.decision is not None:
+        low, high = tracker.belief.decision_interval(0.9)
+        state.belief_rounds[entry.label].update({"decision_time": round(tracker.belief.decision_mean, 4),
+                                                 "decision_interval": [round(low, 4), round(high, 4)],
+                                                 "outcomes": tracker.belief.outcomes})
     return tracker
 
 

@@ -23,11 +23,20 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.navigation import NavigationEnv
-from pernav.model.belief import Answer, AnswerDetector, ReactionBelief, answers_of, frame_series
+from pernav.model.belief import (
+    Answer,
+    AnswerDetector,
+    DecisionPrior,
+    ReactionBelief,
+    answers_of,
+    frame_series,
+    late_probability,
+)
+from pernav.model.outcomes import DECISION_GRID, SwerveDetector, TurnOutcome, turn_outcomes
 from pernav.trainer.collect import derive_seed
 from pernav.world.drivers import DriverProfile, Population, resolve
 
-__all__ = ["LabelledDrive", "fit_belief", "label", "labelled_drive", "labelled_drives"]
+__all__ = ["LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "label", "labelled_drive", "labelled_drives"]
 
 
 @dataclass
@@ -39,7 +48,8 @@ class LabelledDrive:
     labels: list[int]
     reaction_time: float
     decision_time: float
-    steps: list[dict[str, Any]]  # per step: instruction, played, prompt_end, frames, time (what a tracker observes)
+    steps: list[dict[str, Any]]  # per step: instruction, played, prompt_end, frames, time, junction, missed (what a
+    #                               tracker observes) and swerve (a swerve began in it: the world's record, a label)
     took_effect: dict[float, float | None]  # a played prompt's audio end -> when it took effect (None: misheard/ignored)
 
 
@@ -59,13 +69,16 @@ def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, 
         active[round(float(now), 6)] = new[0].active_at if new else None
 
     ego.hear = recording_hear
-    steps, done = [], False
+    steps, done, swerves = [], False, 0
     while not done:
         action = int(info["explore_action"])
         _, _, terminated, truncated, info = env.step(action)
         done = terminated or truncated
         steps.append({"instruction": action, "played": bool(info["played"]), "prompt_start": info["prompt_start"],
-                      "prompt_end": info["prompt_end"], "frames": info["frames"], "time": info["time"]})
+                      "prompt_end": info["prompt_end"], "frames": info["frames"], "time": info["time"],
+                      "junction": info["distance_to_junction"], "missed": info["missed_turns"],
+                      "swerve": env.world.events.swerves > swerves})
+        swerves = env.world.events.swerves
     series, times = frame_series(torch.from_numpy(np.stack([s["frames"] for s in steps])),
                                  torch.tensor([s["time"] for s in steps]))
     played = [s for s in steps if s["played"]]
@@ -98,11 +111,52 @@ def labelled_drives(town: str, n: int, population_seed: int, seed: int,
     return out
 
 
-def fit_belief(drives: list[LabelledDrive], **belief_options: float) -> tuple[AnswerDetector, ReactionBelief]:
+def fit_belief(drives: list[LabelledDrive], decision: bool = False,
+               **belief_options: float) -> tuple[AnswerDetector, ReactionBelief, SwerveDetector | None]:
     """The detector fitted on the drives' labelled answers, and the prior belief: ``log R`` of the drives' drivers
-    (normal), with ``belief_options`` (:class:`ReactionBelief`'s ``noise``, ``outlier``, ``quantile``)."""
+    (normal), with ``belief_options`` (:class:`ReactionBelief`'s ``noise``, ``outlier``, ``quantile``). With
+    ``decision``, the swerve detector fitted on the drives' swerves and the decision time's prior
+    (:func:`fit_decision`); else ``None`` and a belief without ``D``."""
     answers = [a for d in drives for a in d.answers]
     labels = [lab for d in drives for lab in d.labels]
     detector = AnswerDetector().fit(answers, labels)
     logs = torch.tensor([math.log(d.reaction_time) for d in drives], dtype=torch.float64)
-    return detector, ReactionBelief(float(logs.mean()), float(logs.std()), **belief_options)
+    swerve, prior = (fit_decision(drives) if decision else (None, None))
+    return detector, ReactionBelief(float(logs.mean()), float(logs.std()), decision=prior, **belief_options), swerve
+
+
+def drive_outcomes(drive: LabelledDrive, swerve: SwerveDetector) -> list[TurnOutcome]:
+    """The announced junctions' outcomes in a labelled drive, as a tracker reads them (frames, distances, counts)."""
+    frames = torch.from_numpy(np.stack([s["frames"] for s in drive.steps]))
+    with torch.no_grad():
+        probs = swerve(frames)
+    prompts = [(s["instruction"], s["prompt_end"]) for s in drive.steps if s["played"]]
+    return turn_outcomes(prompts, torch.tensor([s["time"] for s in drive.steps]),
+                         torch.tensor([s["junction"] for s in drive.steps]),
+                         torch.tensor([float(s["missed"]) for s in drive.steps]), probs, frames)
+
+
+def fit_decision(drives: list[LabelledDrive]) -> tuple[SwerveDetector, DecisionPrior]:
+    """The swerve detector (on every step's frames, labelled with the world's swerves) and the decision time's prior:
+    the drivers' ``D`` (normal), and ``hit`` and ``false`` of :meth:`ReactionBelief.update_turn`'s likelihood by
+    maximum likelihood on the drives' turn outcomes under each driver's true ``R`` and ``D``."""
+    swerve = SwerveDetector().fit([(torch.from_numpy(np.stack([s["frames"] for s in d.steps])),
+                                    torch.tensor([float(s["swerve"]) for s in d.steps])) for d in drives])
+    rows = [(o.room, o.late, d.reaction_time, d.decision_time) for d in drives for o in drive_outcomes(d, swerve)]
+    D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
+    if not rows:
+        raise ValueError("no announced junction in the offline drives: cannot fit the decision time's likelihood")
+    # each outcome's room at its driver's own decision time (interpolated on the grid), under its own reaction time
+    room = torch.stack([torch.from_numpy(np.interp([Dt], DECISION_GRID.numpy(), r.numpy())) for r, _, _, Dt in rows])
+    late = torch.tensor([bool(x) for _, x, _, _ in rows])
+    R = torch.tensor([r for _, _, r, _ in rows], dtype=torch.float64)
+    p_late = torch.stack([late_probability(R[i: i + 1].log(), room[i])[0, 0] for i in range(len(rows))])
+    best = None
+    for hit in torch.arange(0.05, 1.0, 0.025, dtype=torch.float64):
+        for false in (0.001, 0.002, 0.005, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12):
+            p = false + (hit - false) * p_late
+            ll = float(torch.where(late, p, 1 - p).clamp(min=1e-300).log().sum())
+            if best is None or ll > best[0]:
+                best = (ll, float(hit), false)
+    _, hit, false = best
+    return swerve, DecisionPrior(float(D.mean()), float(D.std()), round(hit, 4), false)

@@ -68,6 +68,19 @@ def test_a_slow_belief_times_prompts_earlier_and_a_quick_one_keeps_explore():
     assert belief_policy(acted).turn_lead(10.0) > explore_policy().turn_lead(10.0) + 5.0
 
 
+def test_a_drivers_own_reading_error_keeps_the_posterior_from_narrowing_below_it():
+    plain, drifting = ReactionBelief(math.log(1.4), 0.4), ReactionBelief(math.log(1.4), 0.4, drift=0.1)
+    for delay in _draws(1.8, 60, seed=5):
+        plain.update(*_answer(delay), none=0.0)
+        drifting.update(*_answer(delay), none=0.0)
+    assert plain.sd < 0.06 < 0.09 < drifting.sd < 0.13  # sqrt(plain^2 + 0.1^2), give or take the prior's pull
+    assert abs(drifting.mean - plain.mean) < 0.03
+    low, high = drifting.interval(0.9)
+    assert low < plain.interval(0.9)[0] < plain.interval(0.9)[1] < high
+    again = ReactionBelief.from_state_dict(drifting.state_dict())
+    assert again.drift == 0.1 and again.sd == drifting.sd
+
+
 def test_a_belief_survives_its_state_dict():
     belief = ReactionBelief(prior_mean=0.2, prior_sd=0.4, noise=0.2, outlier=0.3, quantile=1.5)
     belief.update(*_answer(2.0), none=0.1)
@@ -81,10 +94,21 @@ QUICK = (DriverProfile(reaction_time=0.6, decision_time=1.5), Context())
 
 
 @pytest.fixture(scope="module")
-def fitted():
-    """A detector and prior fitted on 24 simulated development drivers of Town1 (population seed 9201)."""
-    drives = labelled_drives("Town1", n=24, population_seed=9201, seed=0, config={"n_traffic": 2})
-    return fit_belief(drives)
+def offline():
+    """24 simulated development drivers of Town1 (population seed 9201), one explore drive each."""
+    return labelled_drives("Town1", n=24, population_seed=9201, seed=0, config={"n_traffic": 2})
+
+
+@pytest.fixture(scope="module")
+def fitted(offline):
+    """A detector and prior fitted on the development drivers."""
+    return fit_belief(offline)
+
+
+@pytest.fixture(scope="module")
+def fitted_decision(offline):
+    """The same with the decision time: the swerve detector and the decision time's likelihood too."""
+    return fit_belief(offline, decision=True)
 
 
 def _tau(driver, route: int, seed: int):
@@ -95,8 +119,8 @@ def _tau(driver, route: int, seed: int):
 
 
 def _read(fitted, taus) -> BeliefTracker:
-    detector, prior = fitted
-    tracker = BeliefTracker(detector, ReactionBelief.from_state_dict(prior.state_dict()))
+    detector, prior, swerve = fitted
+    tracker = BeliefTracker(detector, ReactionBelief.from_state_dict(prior.state_dict()), swerve=swerve)
     for tau in taus:
         tracker.observe_drive(tau)
     return tracker
@@ -121,7 +145,7 @@ def test_the_posterior_narrows_with_drives_of_the_same_driver(fitted):
 
 @pytest.mark.slow
 def test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_follow(fitted):
-    detector, prior = fitted
+    detector, prior, _ = fitted
     tracker = BeliefTracker(detector, ReactionBelief.from_state_dict(prior.state_dict()))
     env = NavigationEnv("Town1", config={"n_traffic": 2, "belief": tracker})
     _, info = env.reset(seed=3, options={"route": 1, "user": SLOW[0], "context": SLOW[1]})
@@ -136,3 +160,19 @@ def test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompt
     assert moved_at is not None and moved_at < env.time  # read during the drive, not after it
     assert info["belief_reaction"] > at_start  # the slow driver's prompts are timed for a slower driver now
     assert tracker.belief.answers == 0
+
+
+LATE_DECIDER = (DriverProfile(reaction_time=1.6, decision_time=3.0), Context(vehicle="cybertruck"))  # D 3.8 s
+EARLY_DECIDER = (DriverProfile(reaction_time=1.6, decision_time=1.0), Context())
+
+
+@pytest.mark.slow
+def test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes(fitted_decision):
+    _, prior, swerve = fitted_decision
+    assert swerve is not None and 0.0 <= prior.decision.false < prior.decision.hit <= 1.0
+    drives = ((1, 3), (2, 4), (4, 5))
+    late = _read(fitted_decision, [_tau(LATE_DECIDER, r, s) for r, s in drives])
+    early = _read(fitted_decision, [_tau(EARLY_DECIDER, r, s) for r, s in drives])
+    assert late.belief.outcomes > 0 and early.belief.outcomes > 0
+    assert late.belief.decision_mean > early.belief.decision_mean + 0.3
+    assert late.fields().get("decision_time", 0.0) > early.fields().get("decision_time", 0.0)

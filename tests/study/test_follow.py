@@ -45,8 +45,17 @@ def test_the_pre_registration_is_reproduced():
     # fresh seeds: none of the three looks shares a seed with another, nor with the split benchmark's
     from pernav.study.headroom import SEEDS, SPLIT_SEEDS
 
-    looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS]
+    looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS,
+             follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS]
     assert all(not set(a) & set(b) for a, b in itertools.combinations(looks, 2))
+
+
+def test_the_second_look_is_reproduced_and_judges_the_learner_as_committed():
+    registered = json.loads((REGISTERED.parent / "second_look.json").read_text())
+    assert registered == json.loads(json.dumps(follow.second_look()))
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    assert all(BELIEF_DEFAULTS[k] == v for k, v in registered["changed"].items()) and registered["one_look"]
 
 
 def test_the_repeat_schedule_drives_each_driver_five_times_in_its_class():
