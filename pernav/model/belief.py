@@ -15,11 +15,15 @@ the car, or the prompt was misheard or ignored: then there is no answer to read.
   density of its candidate delays weighted by the detector, mixed with a flat density for a prompt misread or
   unanswered. Its prior is the population's (fitted on the same offline drivers); the posterior narrows as answers
   accumulate, within a drive (:class:`BeliefTracker`, updated after each answered prompt) and across drives (the
-  state carries over).
+  state carries over). Its spread never falls below the driver's own reading error (``drift``).
+- With a :class:`DecisionPrior`, the posterior is joint over ``R`` and the decision time ``D``: each junction a "turn"
+  prompt announced adds whether a swerve or a missed turn followed (:mod:`pernav.model.outcomes`), whose likelihood
+  under ``(R, D)`` is that the prompt took effect after the moment a driver with decision time ``D`` commits.
 
 What the prompt rules act on is the posterior's ``quantile``-SD upper value when that is later than explore's
 average driver (a late prompt costs far more than an early one), else explore's own timing; with the guard, the
-quickest driver the posterior allows too (:meth:`ReactionBelief.belief`).
+quickest driver the posterior allows too; and a later decision time by as much as the evidence raised its upper value
+(:meth:`ReactionBelief.belief`).
 
 Example:
     >>> import torch

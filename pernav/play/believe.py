@@ -109,9 +109,14 @@ class BeliefSession:
         the "turn" prompt's lead at :data:`REFERENCE_SPEED` for this belief."""
         b = self.tracker.belief
         low, high = b.interval(0.9)
-        return {"after_drive": drive, "reaction_time": round(b.mean_reaction(), 3),
-                "interval": [round(low, 3), round(high, 3)], "answers": int(b.answers),
-                "turn_lead_s": round(prompt_lead(self.tracker.fields()), 3)}
+        record = {"after_drive": drive, "reaction_time": round(b.mean_reaction(), 3),
+                  "interval": [round(low, 3), round(high, 3)], "answers": int(b.answers),
+                  "turn_lead_s": round(prompt_lead(self.tracker.fields()), 3)}
+        if b.decision is not None:  # the decision time too: from the announced junctions' outcomes
+            low, high = b.decision_interval(0.9)
+            record.update({"decision_time": round(b.decision_mean, 3),
+                           "decision_interval": [round(low, 3), round(high, 3)], "junctions": int(b.outcomes)})
+        return record
 
     def _controls(self) -> Any:
         if self.controls is None:
@@ -165,6 +170,10 @@ class BeliefSession:
         moved = now["turn_lead_s"] - before["turn_lead_s"]
         self.announce(f"  your reaction time, as the navigation reads it: {now['reaction_time']:.2f} s (90 % interval "
                       f"{now['interval'][0]:.2f}-{now['interval'][1]:.2f} s, from {now['answers']} answered prompts)")
+        if "decision_time" in now:
+            self.announce(f"  when you choose your branch, as it reads it: {now['decision_time']:.1f} s before the "
+                          f"junction (90 % interval {now['decision_interval'][0]:.1f}-{now['decision_interval'][1]:.1f}"
+                          f" s, from {now['junctions']} announced junctions)")
         self.announce(f"  your 'turn' prompt at 50 km/h: {now['turn_lead_s']:.1f} s before the junction "
                       f"({'unchanged' if abs(moved) < 0.05 else f'{moved:+.1f} s'}; explore's "
                       f"{prompt_lead({}):.1f} s)")
