@@ -11,7 +11,8 @@ curve over repeated drives, the headroom benchmark on fresh seeds.
     .venv/bin/python docs/research/scripts/follow_judge.py repeat runs/follow/repeat/seed*
     .venv/bin/python docs/research/scripts/follow_judge.py headroom runs/follow/headroom/seed*
 
-Each writes docs/figures/follow/<look>.json (and the sweep's and the curve's .png) and prints the figures.
+Each writes docs/figures/follow/<look>.json (and the sweep's and the curve's .png) and prints the figures; ``--out DIR``
+writes them to DIR instead (the second look: docs/figures/follow/second).
 """
 
 import json
@@ -85,7 +86,13 @@ def headroom(runs: list[dict]) -> list[str]:
 
 
 def main() -> None:
-    look, paths = sys.argv[1], sys.argv[2:]
+    global OUT
+    args = sys.argv[1:]
+    if "--out" in args:  # the second look writes beside the first, never over it
+        i = args.index("--out")
+        OUT = Path(args[i + 1])
+        del args[i: i + 2]
+    look, paths = args[0], args[1:]
     runs = [json.loads((Path(p) / "results.json").read_text()) for p in paths]
     OUT.mkdir(parents=True, exist_ok=True)
     print("\n".join({"sweep": sweep, "repeat": repeat, "headroom": headroom}[look](runs)))

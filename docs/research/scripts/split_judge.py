@@ -3,6 +3,7 @@ learner on the 16 studies of seeds 100-115.
 
     for s in $(seq 100 115); do pernav study --preset split --seed $s --out runs/split/seed$s --workers 2; done
     .venv/bin/python docs/research/scripts/split_judge.py runs/split/seed*     # -> docs/figures/split/judged.json
+    (--out FILE: elsewhere; the second look wrote docs/figures/split/second_look.json)
 """
 
 import json
@@ -13,9 +14,15 @@ from pernav.study.headroom import judge_split
 
 
 def main() -> None:
-    runs = [json.loads((Path(p) / "results.json").read_text()) for p in sys.argv[1:]]
+    args, out = sys.argv[1:], Path("docs/figures/split/judged.json")
+    if "--out" in args:  # the second look writes beside the first, never over it
+        i = args.index("--out")
+        out = Path(args[i + 1])
+        del args[i: i + 2]
+    runs = [json.loads((Path(p) / "results.json").read_text()) for p in args]
     figures = judge_split(runs)
-    Path("docs/figures/split/judged.json").write_text(json.dumps(figures, indent=1) + "\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(figures, indent=1) + "\n")
     print(summary(figures))
 
 
