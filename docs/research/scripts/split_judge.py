@@ -3,7 +3,7 @@ learner on the 16 studies of seeds 100-115.
 
     for s in $(seq 100 115); do pernav study --preset split --seed $s --out runs/split/seed$s --workers 2; done
     .venv/bin/python docs/research/scripts/split_judge.py runs/split/seed*     # -> docs/figures/split/judged.json
-    (--out FILE: elsewhere; the second look wrote docs/figures/split/second_look.json)
+    (--out FILE writes it elsewhere: the second look writes beside the first)
 """
 
 import json
