@@ -3,20 +3,61 @@ import os
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+# The longest checks, two by two, in the order they start under `make test` (pytest -n 2 --dist load
+# --maxschedchunk 2 hands a worker the next two tests whenever it is down to its last one, so each pair runs on one
+# worker, one test after the other). A pair shares what its tests build: the recorded-drives study and its resume,
+# the study on a pool of two and its comparison, the sweeps of tests/world/test_acceptance.py, the development
+# drivers of tests/model/test_belief.py (module fixtures, built again on every worker that runs one of their tests).
+# The shared smoke study (tests/study/study_helpers.py) is built first; the checks that compare against it (the pool
+# of two, Ray, SIGKILL, then the rest) reach a worker only once one of its long checks has run, so no worker waits
+# on the other's study. Ids without parameters name every case of a parametrized test.
+PAIRS = (
+    ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
+     "tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[slow_fog_truck]"),
+    ("tests/study/test_recorded_schedule.py::test_a_study_learns_from_recorded_and_simulated_drives",
+     "tests/study/test_recorded_schedule.py::test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_"
+     "same_results"),
+    ("tests/study/test_study.py::test_smoke_results_match_the_schema",
+     "tests/study/test_study.py::test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers"),
+    ("tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[elderly_like]",
+     "tests/study/test_reliability.py::test_smoke_study_on_local_ray_equals_single_process"),
+    ("tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results",
+     "tests/world/test_acceptance.py::test_explore_completes_routes_with_the_average_driver"),
+    ("tests/world/test_acceptance.py::test_best_lead_time_is_personal",
+     "tests/world/test_acceptance.py::test_too_late_misses_and_too_early_goes_wrong"),
+    ("tests/model/test_belief.py::test_a_late_answering_driver_gets_a_later_belief_and_earlier_prompts_a_quick_one_"
+     "explore",
+     "tests/model/test_belief.py::test_the_posterior_narrows_with_drives_of_the_same_driver"),
+    ("tests/model/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
+     "follow",
+     "tests/model/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
+    ("tests/world/test_acceptance.py::test_too_late_swerves_strike_for_truck_and_fast_keyboard",
+     "tests/study/test_reliability.py::test_nan_loss_is_skipped_and_the_study_finishes"),
+)
+
 
 def pytest_collection_modifyitems(config, items):
-    """The tests marked ``slow`` first, then the rest, so that under ``pytest -n 2 --dist load --maxschedchunk 2``
-    (``make test``) the long checks start early on both workers and the short ones fill in around them, instead of
-    a long check starting last while the other worker idles. The slow tests of the folders whose checks take
-    longest come first, taken in turn from each folder: two workers rarely wait on the same shared study."""
+    """The tests of :data:`PAIRS` first, in that order, then the other tests marked ``slow``, then the rest, so
+    that under ``pytest -n 2 --dist load --maxschedchunk 2`` (``make test``) the long checks start early on both
+    workers and the short ones fill in around them, instead of a long check starting last while the other worker
+    idles. The other slow tests of the folders whose checks take longest come first, taken in turn from each
+    folder."""
     order = ("study", "world", "play")
+    first = [nodeid for pair in PAIRS for nodeid in pair]
 
     def folder(item) -> int:
         parts = item.path.relative_to(config.rootpath).parts  # ("tests", "study", "test_x.py"), ("pernav", ...)
         name = parts[1] if parts[0] == "tests" and len(parts) > 2 else ""
         return order.index(name) if name in order else len(order)
 
+    def rank(item) -> int:
+        for nodeid in (item.nodeid, item.nodeid.split("[")[0]):
+            if nodeid in first:
+                return first.index(nodeid)
+        return len(first)
+
     slow = [item for item in items if item.get_closest_marker("slow") is not None]
-    groups = [[item for item in slow if folder(item) == k] for k in range(len(order) + 1)]
-    turns = [group[i] for i in range(max(map(len, groups))) for group in groups if i < len(group)]
+    folders = [[item for item in slow if folder(item) == k] for k in range(len(order) + 1)]
+    turns = [tests[i] for i in range(max(map(len, folders), default=0)) for tests in folders if i < len(tests)]
+    turns.sort(key=rank)  # stable: the slow tests not in PAIRS keep their turns
     items[:] = turns + [item for item in items if item.get_closest_marker("slow") is None]

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import pytest
-from study_helpers import shared_study, smoke_reference, without_wall_time
+from study_helpers import shared_folder, smoke_reference, without_wall_time
 
 from pernav.cli import main
-from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
+from pernav.study import ScheduleError, StudyConfig, load_schedule, paper_schedule, parse_schedule, preset, run_study
 
 METHOD_KEYS = {"tracking_cost", "collisions", "vehicle_collisions", "edge_strikes", "completion", "episodes"}
 SUMMARY_KEYS = {"tracking_cost_mean", "collisions_mean", "collisions_std", "completion_mean"}
@@ -21,10 +22,25 @@ def _smoke(towns: list[str]):
     return cfg
 
 
+def _two_towns() -> StudyConfig:
+    """The smoke study of Town1 and Town2, Town2 without the last round: each town runs in a worker of its own,
+    Town1 the whole smoke study, which the study's own process runs in :func:`smoke_reference`; Town2 (its offline
+    round and an online one, every method) is the town beside it and the schema's second town."""
+    cfg = _smoke(["Town1", "Town2"])
+    *rounds, last = cfg.schedule
+    cfg.schedule = [*rounds, dataclasses.replace(last, towns=("Town1",))]
+    return cfg
+
+
 @pytest.fixture(scope="module")
 def two_workers(tmp_path_factory) -> tuple[Path, dict]:
-    """The smoke study of Town1 and Town2 on a pool of two workers (run once per session)."""
-    out = shared_study(tmp_path_factory, "smoke_two_workers", ("Town1", "Town2"), workers=2)
+    """:func:`_two_towns` on a pool of two workers (run once per session)."""
+
+    def build(out: Path) -> None:
+        results = run_study(_two_towns(), out, workers=2)
+        assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
+
+    out = shared_folder(tmp_path_factory, "smoke_two_workers", build)
     return out, json.loads((out / "results.json").read_text())
 
 
@@ -34,6 +50,7 @@ def test_smoke_results_match_the_schema(two_workers):
     assert {"config", "iterations", "summary"} <= set(on_disk)
     labels = [it["label"] for it in on_disk["iterations"]]
     assert labels == ["Offline 0", "Online 0", "Online 8"]
+    assert [sorted(it["towns"]) for it in on_disk["iterations"]] == [["Town1", "Town2"]] * 2 + [["Town1"]]
     for it in on_disk["iterations"]:
         assert it["phase"] in ("offline", "online")
         assert {"name", "profile", "context"} <= set(it["user"])
@@ -47,9 +64,10 @@ def test_smoke_results_match_the_schema(two_workers):
                 assert 0.0 <= figures["completion"] <= 1.0
                 assert figures["collisions"] == figures["vehicle_collisions"] + figures["edge_strikes"]
                 assert figures["tracking_cost"] >= 0
-    for town in ("Town1", "Town2"):
+    for town, rounds in (("Town1", 2), ("Town2", 1)):
+        assert set(on_disk["summary"][town]) == set(preset("smoke").methods), town
         for method, s in on_disk["summary"][town].items():
-            assert SUMMARY_KEYS <= set(s), method
+            assert SUMMARY_KEYS <= set(s) and s["rounds"] == rounds, (town, method)
     assert (out / "report.md").read_text().startswith("# pernav study")
     assert (out / "figures" / "Town1_cost.png").stat().st_size > 1000
     assert (out / "figures" / "Town1_regret.png").exists()
