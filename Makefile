@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 study: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/pernav study --preset default --out $(OUT) --workers 2 --resume
 
-# every test and every module's doctests (about 8.5 minutes on 2 cores)
+# every test and every module's doctests (about 6.5 minutes on 2 cores)
 test: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist load --maxschedchunk 2 --doctest-modules tests pernav
 
