@@ -305,24 +305,22 @@ class ReactionBelief:
     @property
     def mean(self) -> float:
         """Posterior mean of ``log R``."""
-        return float((self.weights() * self.GRID).sum())
+        return _moments(self.weights(), self.GRID)[0]
 
     @property
     def sd(self) -> float:
         """Posterior SD of ``log R`` (narrows as answers accumulate)."""
-        w = self.weights()
-        return float(((w * (self.GRID - self.mean) ** 2).sum()).sqrt())
+        return _moments(self.weights(), self.GRID)[1]
 
     @property
     def decision_mean(self) -> float:
         """Posterior mean of ``D`` (s)."""
-        return float((self.decision_weights() * self.D_GRID).sum())
+        return _moments(self.decision_weights(), self.D_GRID)[0]
 
     @property
     def decision_sd(self) -> float:
         """Posterior SD of ``D`` (s)."""
-        w = self.decision_weights()
-        return float(((w * (self.D_GRID - self.decision_mean) ** 2).sum()).sqrt())
+        return _moments(self.decision_weights(), self.D_GRID)[1]
 
     def mean_reaction(self) -> float:
         """The posterior median of ``R`` (s): ``exp`` of the mean of ``log R``."""
@@ -396,6 +394,12 @@ def _drift_kernel(drift: float) -> torch.Tensor:
     return k / k.sum(1, keepdim=True)
 
 
+def _moments(weights: torch.Tensor, grid: torch.Tensor) -> tuple[float, float]:
+    """Mean and SD of a distribution on a grid."""
+    mean = float((weights * grid).sum())
+    return mean, float(((weights * (grid - mean) ** 2).sum()).sqrt())
+
+
 def _central(weights: torch.Tensor, grid: torch.Tensor, level: float) -> tuple[float, float]:
     """The central ``level`` interval of a distribution on a grid (its grid points)."""
     c = torch.cumsum(weights, 0)
@@ -425,11 +429,9 @@ class DecisionPrior:
 
     def upper(self, quantile: float) -> float:
         """The prior's mean plus ``quantile`` SDs, on :attr:`ReactionBelief.D_GRID` (where the grid cuts it)."""
-        grid = ReactionBelief.D_GRID
-        w = torch.exp(self.log_prior(grid))
-        w = w / w.sum()
-        mean = float((w * grid).sum())
-        return mean + quantile * float(((w * (grid - mean) ** 2).sum()).sqrt())
+        w = torch.exp(self.log_prior(ReactionBelief.D_GRID))
+        mean, sd = _moments(w / w.sum(), ReactionBelief.D_GRID)
+        return mean + quantile * sd
 
 
 class BeliefTracker:
