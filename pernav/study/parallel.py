@@ -39,11 +39,16 @@ def _one_thread() -> None:
     logging.getLogger("torchrl").setLevel(logging.WARNING)
 
 
-def init_worker(poll_s: float = 1.0) -> None:
+def init_worker(parent: int | None = None, poll_s: float = 1.0) -> None:
     """A pool worker's initializer: one torch thread, quiet torchrl, and exit within ``poll_s`` seconds once
-    the parent process is gone (a killed ``pernav study`` would otherwise leave its workers computing)."""
+    the parent process ``parent`` is gone (a killed ``pernav study`` would otherwise leave its workers computing).
+    The pool passes its own pid: a worker that starts after its parent was killed would read ``os.getppid()``
+    as 1 (init) and wait forever."""
     _one_thread()
-    threading.Thread(target=_exit_with, args=(os.getppid(), poll_s), daemon=True).start()
+    parent = os.getppid() if parent is None else parent
+    if os.getppid() != parent:  # already orphaned before this initializer ran
+        os._exit(1)
+    threading.Thread(target=_exit_with, args=(parent, poll_s), daemon=True).start()
 
 
 def _bar(items: Iterable[Any], desc: str | None, total: int | None = None) -> Iterable[Any]:
@@ -71,7 +76,7 @@ class PoolExecutor:
     def __init__(self, workers: int) -> None:
         self.workers = workers
         self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=init_worker)
+                                        initializer=init_worker, initargs=(os.getpid(),))
 
     def map(self, fn: Callable[[Any], Any], items: Iterable[Any], desc: str | None = None) -> list[Any]:
         items = list(items)

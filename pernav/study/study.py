@@ -110,7 +110,8 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
     elif workers > 1 and len(cfg.towns) >= workers:
         jobs = [(cfg, town, str(out), resume, i, "serial") for i, town in enumerate(cfg.towns)]
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker) as pool:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=init_worker,
+                                 initargs=(os.getpid(),)) as pool:
             towns = list(pool.map(_town_job, jobs))
     else:
         executor = make_executor(workers)

@@ -156,3 +156,14 @@ def test_pool_workers_exit_when_the_study_process_is_killed(tmp_path):
     while any(alive(p) for p in pids) and time.time() < deadline:
         time.sleep(0.2)
     assert not any(alive(p) for p in pids)
+
+
+def test_a_pool_worker_that_starts_after_its_parent_died_exits():
+    # a worker spawned just before its parent was killed reads os.getppid() as init's pid: it must not wait for
+    # init to exit (one such worker outlived a test run)
+    import subprocess
+    import sys
+
+    code = "from pernav.study.parallel import init_worker\ninit_worker(parent=2 ** 22 + 1)\nprint('still here')"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 1 and "still here" not in proc.stdout
