@@ -5,6 +5,7 @@ import math
 
 import pytest
 import torch
+from navigation_helpers import shared_value
 
 from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import belief_policy, explore_policy
@@ -94,9 +95,11 @@ QUICK = (DriverProfile(reaction_time=0.6, decision_time=1.5), Context())
 
 
 @pytest.fixture(scope="module")
-def offline():
-    """24 simulated development drivers of Town1 (population seed 9201), one explore drive each."""
-    return labelled_drives("Town1", n=24, population_seed=9201, seed=0, config={"n_traffic": 2})
+def offline(tmp_path_factory):
+    """24 simulated development drivers of Town1 (population seed 9201), one explore drive each (built once for
+    both pytest workers)."""
+    return shared_value(tmp_path_factory, "belief_development_drives", lambda: labelled_drives(
+        "Town1", n=24, population_seed=9201, seed=0, config={"n_traffic": 2}))
 
 
 @pytest.fixture(scope="module")

@@ -5,14 +5,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import time
-from collections.abc import Callable
 from pathlib import Path
 
-from filelock import FileLock
+from navigation_helpers import shared_folder
 
 
 def kill_then_resume(cmd: list[str], out: Path, town: str, index: int, timeout: float = 300.0) -> dict:
@@ -41,22 +39,6 @@ def kill_then_resume(cmd: list[str], out: Path, town: str, index: int, timeout: 
 def without_wall_time(results: dict) -> dict:
     """``results`` as results.json holds it, less its ``wall_time`` (wall-clock seconds: they differ run to run)."""
     return json.loads(json.dumps({k: v for k, v in results.items() if k != "wall_time"}))
-
-
-def shared_folder(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
-    """A folder that ``build(folder)`` fills once per test session, in a place that the pytest-xdist workers share:
-    each waits on a file lock while the first builds it, so that tests spread over both workers do not each run
-    the same study again. Returns the folder."""
-    base = tmp_path_factory.getbasetemp()
-    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # this session's workers share it
-    out = shared / name
-    with FileLock(str(shared / f"{name}.lock")):
-        if not (shared / f"{name}.done").exists():
-            shutil.rmtree(out, ignore_errors=True)  # what a build that failed left
-            out.mkdir(parents=True)
-            build(out)
-            (shared / f"{name}.done").touch()
-    return out
 
 
 def shared_study(tmp_path_factory, name: str, towns: tuple[str, ...] = ("Town1",), workers: int = 1) -> Path:

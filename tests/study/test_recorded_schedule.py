@@ -10,7 +10,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import kill_then_resume, shared_folder
+from navigation_helpers import shared_folder
+from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession

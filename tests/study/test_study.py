@@ -7,7 +7,8 @@ import json
 from pathlib import Path
 
 import pytest
-from study_helpers import shared_folder, smoke_reference, without_wall_time
+from navigation_helpers import shared_folder
+from study_helpers import smoke_reference, without_wall_time
 
 from pernav.cli import main
 from pernav.study import ScheduleError, StudyConfig, load_schedule, paper_schedule, parse_schedule, preset, run_study

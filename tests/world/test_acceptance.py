@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from navigation_helpers import shared_value
 
 from pernav.env.episodes import drive_routes
 from pernav.env.sweep import best_lead, timing_sweep
@@ -27,8 +28,10 @@ ATYPICAL = {
 
 
 @pytest.fixture(scope="module")
-def sweeps():
-    return {k: timing_sweep(p, c, leads=np.arange(0.0, 16.5, 1.0)) for k, (p, c) in PROFILES.items()}
+def sweeps(tmp_path_factory):
+    """Each profile's lead-time sweep, built once for both pytest workers."""
+    return shared_value(tmp_path_factory, "acceptance_sweeps", lambda: {
+        k: timing_sweep(p, c, leads=np.arange(0.0, 16.5, 1.0)) for k, (p, c) in PROFILES.items()})
 
 
 @pytest.mark.slow
