@@ -223,16 +223,20 @@ class ReactionBelief:
             may read its answers earlier or later by the same factor in every drive, so the posterior about ``R``
             never narrows below it (the likelihood is smoothed along ``log R`` by it; fitted for the interval's
             coverage on development drivers). 0: every answer's error independent.
+        slower: the posterior probability that ``R`` exceeds the average driver's that the evidence must reach before
+            the prompts are re-timed for the reaction time; below it they keep explore's. 0: the upper value alone
+            decides (a driver the evidence shows to be quicker than average, but with a wide posterior, was re-timed).
     """
 
     GRID = torch.linspace(math.log(0.3), math.log(6.0), 241, dtype=torch.float64)
     D_GRID = DECISION_GRID
 
     def __init__(self, prior_mean: float, prior_sd: float, noise: float = 0.15, outlier: float = 0.3,
-                 quantile: float = 1.0, decision: DecisionPrior | None = None, drift: float = 0.0) -> None:
+                 quantile: float = 1.0, decision: DecisionPrior | None = None, drift: float = 0.0,
+                 slower: float = 0.0) -> None:
         self.prior_mean, self.prior_sd = float(prior_mean), float(prior_sd)
         self.noise, self.outlier, self.quantile = float(noise), float(outlier), float(quantile)
-        self.decision, self.drift = decision, float(drift)
+        self.decision, self.drift, self.slower = decision, float(drift), float(slower)
         # the prior times every answer's and outcome's likelihood (without the driver's own reading error)
         self.log_post = self._log_prior()
         if decision is not None:  # [G, H]: log R by D
@@ -326,6 +330,10 @@ class ReactionBelief:
         """The posterior median of ``R`` (s): ``exp`` of the mean of ``log R``."""
         return math.exp(self.mean)
 
+    def slower_than(self, reaction_time: float) -> float:
+        """The posterior probability that ``R`` exceeds ``reaction_time`` (s)."""
+        return float(self.weights()[self.GRID > math.log(reaction_time)].sum())
+
     def interval(self, level: float = 0.9) -> tuple[float, float]:
         """The central ``level`` credible interval of ``R`` (s)."""
         lo, hi = _central(self.weights(), self.GRID, level)
@@ -339,7 +347,8 @@ class ReactionBelief:
         """What the prompt rules act on (:func:`pernav.env.policies.belief_policy`).
 
         The reaction time: explore's timing (no entry) when the posterior's upper value (``quantile`` SDs above the
-        mean) is no later than explore's average driver's, else that upper value and, with ``guard``, the quickest
+        mean) is no later than explore's average driver's, or when the posterior probability that the driver is slower
+        than that driver is below ``slower``; else that upper value and, with ``guard``, the quickest
         driver the posterior allows (its lower value, never slower than the average driver, at the 5th percentile of
         one prompt's draw). The decision time (with a decision prior): explore's average driver's, later by as much
         as the posterior's upper value of ``D`` has risen above the prior's; turn outcomes that show no lateness
@@ -347,7 +356,7 @@ class ReactionBelief:
         average = explore_policy().driver
         belief: dict[str, Any] = {}
         upper = math.exp(self.mean + self.quantile * self.sd)
-        if upper > average.reaction_time:
+        if upper > average.reaction_time and self.slower_than(average.reaction_time) >= self.slower:
             belief["reaction_time"] = round(upper, 4)
             if guard:
                 low = min(math.exp(self.mean - self.quantile * self.sd), average.reaction_time)
@@ -363,14 +372,15 @@ class ReactionBelief:
     def state_dict(self) -> dict[str, Any]:
         return {"prior_mean": self.prior_mean, "prior_sd": self.prior_sd, "noise": self.noise,
                 "outlier": self.outlier, "quantile": self.quantile, "log_post": self.log_post.clone(),
-                "answers": self.answers, "outcomes": self.outcomes, "drift": self.drift,
+                "answers": self.answers, "outcomes": self.outcomes, "drift": self.drift, "slower": self.slower,
                 "decision": None if self.decision is None else dataclasses.asdict(self.decision)}
 
     @classmethod
     def from_state_dict(cls, state: Mapping[str, Any]) -> ReactionBelief:
         decision = state.get("decision")
         out = cls(state["prior_mean"], state["prior_sd"], state["noise"], state["outlier"], state["quantile"],
-                  None if decision is None else DecisionPrior(**decision), float(state.get("drift", 0.0)))
+                  None if decision is None else DecisionPrior(**decision), float(state.get("drift", 0.0)),
+                  float(state.get("slower", 0.0)))
         out.log_post, out.answers = state["log_post"].clone(), int(state["answers"])
         out.outcomes = int(state.get("outcomes", 0))
         return out

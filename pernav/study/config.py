@@ -36,10 +36,11 @@ TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile":
 # town, the detector's timing noise (log s) and outlier share in the likelihood, the posterior SDs above the mean that
 # the prompts are timed for, the guard (as the timing learner's), decision (1: a posterior over the decision time
 # too, from the announced junctions' swerves and missed turns; 0: the reaction time only) and drift (SD of a driver's
-# own reading error, log s: the posterior about the reaction time never narrows below it). decision 0 and drift 0
-# is the learner as judged first (docs/personal.md)
+# own reading error, log s: the posterior about the reaction time never narrows below it) and slower (the posterior
+# probability that the driver is slower than the average driver that re-timing for the reaction time needs). decision
+# 0, drift 0 and slower 0 is the learner as judged first; slower 0 the second version (docs/personal.md)
 BELIEF_DEFAULTS: dict[str, Any] = {"offline_drivers": 96, "noise": 0.15, "outlier": 0.3, "quantile": 1.0, "guard": 1,
-                                   "decision": 1, "drift": 0.1}
+                                   "decision": 1, "drift": 0.1, "slower": 0.5}
 # options renamed since configurations were saved (presets, study.json, results.json's config): old name -> new.
 # ``tau`` named the policy of the adaptation drive; tau is the drive itself
 RENAMED_OPTIONS = {"tau": "tau_policy"}

@@ -37,7 +37,7 @@ from pernav.world.drivers import resolve
 
 __all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
            "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
-           "plot_sweep_leads", "preregistration", "repeat_schedule", "second_look", "spearman"]
+           "plot_sweep_leads", "preregistration", "repeat_schedule", "second_look", "spearman", "third_look"]
 
 #: the sweep's study seeds for this look (fresh: never run before this pre-registration)
 SWEEP_SEEDS = (200, 201, 202, 203)
@@ -85,6 +85,14 @@ SECOND_LOOK_CHANGES: dict[str, Any] = {"decision": 1, "drift": 0.1}
 SECOND_LOOK_SWEEP_SEEDS = (210, 211, 212, 213)
 SECOND_LOOK_SPLIT_SEEDS = tuple(range(116, 132))
 
+#: the third look at the split benchmark (one, fixed before it ran), after its second missed one target (the quick
+#: half's "turn" prompts +0.35 s earlier than explore's, against at most 0.3): the prompts keep explore's reaction time
+#: unless the posterior says the driver is more likely slower than the average driver than not (``slower``), chosen
+#: on development drivers only (Population seeds 9105/9106: the quick drivers' lead after one drive +0.46/+0.34 s in
+#: Town1/Town3 -> +0.37/+0.18 s, the slow drivers' unchanged; docs/personal.md)
+THIRD_LOOK_CHANGES: dict[str, Any] = {"slower": 0.5}
+THIRD_LOOK_SPLIT_SEEDS = tuple(range(132, 148))
+
 
 def repeat_schedule() -> list[Entry]:
     """The ``repeat`` preset's schedule: the offline rounds, then :data:`REPEAT_DRIVES` rounds of each of
@@ -120,10 +128,22 @@ def second_look() -> dict[str, Any]:
     from pernav.study.config import BELIEF_DEFAULTS
     from pernav.study.headroom import SPLIT_TARGETS
 
-    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "changed": SECOND_LOOK_CHANGES, "one_look": True,
+    options = {k: v for k, v in BELIEF_DEFAULTS.items() if k not in THIRD_LOOK_CHANGES}  # as they were then
+    return {"learner": "belief", "options": options, "changed": SECOND_LOOK_CHANGES, "one_look": True,
             "look": 2, "sweep": {"preset": "personal_sweep", "seeds": list(SECOND_LOOK_SWEEP_SEEDS),
                                  "targets": SWEEP_TARGETS},
             "split": {"preset": "split", "seeds": list(SECOND_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
+
+
+def third_look() -> dict[str, Any]:
+    """The split benchmark's third look, as fixed before it ran (JSON-ready): fresh seeds, the same targets as its
+    first two looks, the learner's options as committed. A look repeated because the one before missed a target."""
+    from pernav.study.config import BELIEF_DEFAULTS
+    from pernav.study.headroom import SPLIT_TARGETS
+
+    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "changed": THIRD_LOOK_CHANGES, "one_look": True,
+            "look": 3, "why": "the second look missed the quick half's 'turn' lead (+0.35 s against at most 0.3)",
+            "split": {"preset": "split", "seeds": list(THIRD_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
 
 
 def spearman(x: list[float], y: list[float]) -> float:

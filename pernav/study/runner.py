@@ -434,7 +434,7 @@ def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
                              progress=True)
     detector, prior, swerve = fit_belief(drives, decision=bool(options.get("decision", 0)), noise=options["noise"],
                                          outlier=options["outlier"], quantile=options["quantile"],
-                                         drift=options.get("drift", 0.0))
+                                         drift=options.get("drift", 0.0), slower=options.get("slower", 0.0))
     return {"detector": detector.state_dict(), "prior": prior.state_dict(),
             "swerve": None if swerve is None else swerve.state_dict()}
 

@@ -82,6 +82,20 @@ def test_a_drivers_own_reading_error_keeps_the_posterior_from_narrowing_below_it
     assert again.drift == 0.1 and again.sd == drifting.sd
 
 
+def test_a_wide_belief_on_the_quick_side_of_the_average_driver_keeps_explore_with_slower():
+    average = explore_policy().driver.reaction_time
+    for shift, acts in ((-0.15, False), (0.15, True)):  # posterior median below / above the average driver's
+        wide = {"prior_mean": math.log(average) + shift, "prior_sd": 0.4}
+        plain, gated = ReactionBelief(**wide), ReactionBelief(**wide, slower=0.5)
+        # P(R > average) of a normal log R against its grid sum
+        expected = 0.5 * math.erfc(-shift / 0.4 / math.sqrt(2))
+        assert gated.slower_than(average) == pytest.approx(expected, abs=0.01)
+        assert "reaction_time" in plain.belief()  # its upper value (mean + 1 SD) is later than the average's
+        assert ("reaction_time" in gated.belief()) is acts
+    again = ReactionBelief.from_state_dict(gated.state_dict())
+    assert again.slower == 0.5 and again.belief() == gated.belief()
+
+
 def test_a_belief_survives_its_state_dict():
     belief = ReactionBelief(prior_mean=0.2, prior_sd=0.4, noise=0.2, outlier=0.3, quantile=1.5)
     belief.update(*_answer(2.0), none=0.1)

@@ -46,7 +46,7 @@ def test_the_pre_registration_is_reproduced():
     from pernav.study.headroom import SEEDS, SPLIT_SEEDS
 
     looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS,
-             follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS]
+             follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS, follow.THIRD_LOOK_SPLIT_SEEDS]
     assert all(not set(a) & set(b) for a, b in itertools.combinations(looks, 2))
 
 
@@ -56,6 +56,15 @@ def test_the_second_look_is_reproduced_and_judges_the_learner_as_committed():
     from pernav.study.config import BELIEF_DEFAULTS
 
     assert all(BELIEF_DEFAULTS[k] == v for k, v in registered["changed"].items()) and registered["one_look"]
+
+
+def test_the_third_look_is_reproduced_and_judges_the_learner_as_committed():
+    registered = json.loads((REGISTERED.parent / "third_look.json").read_text())
+    assert registered == json.loads(json.dumps(follow.third_look()))
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    assert registered["options"] == BELIEF_DEFAULTS and registered["one_look"] and registered["look"] == 3
+    assert registered["changed"] == {"slower": 0.5}
 
 
 def test_the_repeat_schedule_drives_each_driver_five_times_in_its_class():
