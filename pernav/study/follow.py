@@ -37,7 +37,8 @@ from pernav.world.drivers import resolve
 
 __all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
            "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
-           "plot_sweep_leads", "preregistration", "repeat_schedule", "second_look", "spearman", "third_look"]
+           "plot_sweep_leads", "preregistration", "repeat_schedule", "repeat_second_look", "second_look", "spearman",
+           "third_look"]
 
 #: the sweep's study seeds for this look (fresh: never run before this pre-registration)
 SWEEP_SEEDS = (200, 201, 202, 203)
@@ -92,6 +93,9 @@ SECOND_LOOK_SPLIT_SEEDS = tuple(range(116, 132))
 #: Town1/Town3 -> +0.37/+0.18 s, the slow drivers' unchanged; docs/personal.md)
 THIRD_LOOK_CHANGES: dict[str, Any] = {"slower": 0.5}
 THIRD_LOOK_SPLIT_SEEDS = tuple(range(132, 148))
+#: the repeated drives' second look (one, fixed before it ran): the personalization curve had run with the first
+#: version only; the learner as it is now (the decision time, the drift, ``slower``) drives the same drivers again
+REPEAT_SECOND_LOOK_SEEDS = (404, 405, 406, 407)
 
 
 def repeat_schedule() -> list[Entry]:
@@ -144,6 +148,17 @@ def third_look() -> dict[str, Any]:
     return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "changed": THIRD_LOOK_CHANGES, "one_look": True,
             "look": 3, "why": "the second look missed the quick half's 'turn' lead (+0.35 s against at most 0.3)",
             "split": {"preset": "split", "seeds": list(THIRD_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
+
+
+def repeat_second_look() -> dict[str, Any]:
+    """The repeated drives' second look, as fixed before it ran (JSON-ready): the same drivers and targets as the
+    first look (:func:`preregistration`), fresh seeds, the learner's options as committed."""
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "one_look": True, "look": 2,
+            "why": "the first look ran the first version (reaction time only); the options have changed since",
+            "repeat": {"preset": "repeat", "population_seed": REPEAT_POPULATION_SEED, "drivers_per_half": REPEAT_DRIVERS,
+                       "drives": REPEAT_DRIVES, "seeds": list(REPEAT_SECOND_LOOK_SEEDS), "targets": REPEAT_TARGETS}}
 
 
 def spearman(x: list[float], y: list[float]) -> float:

@@ -46,7 +46,8 @@ def test_the_pre_registration_is_reproduced():
     from pernav.study.headroom import SEEDS, SPLIT_SEEDS
 
     looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS,
-             follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS, follow.THIRD_LOOK_SPLIT_SEEDS]
+             follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS, follow.THIRD_LOOK_SPLIT_SEEDS,
+             follow.REPEAT_SECOND_LOOK_SEEDS]
     assert all(not set(a) & set(b) for a, b in itertools.combinations(looks, 2))
 
 
@@ -65,6 +66,17 @@ def test_the_third_look_is_reproduced_and_judges_the_learner_as_committed():
 
     assert registered["options"] == BELIEF_DEFAULTS and registered["one_look"] and registered["look"] == 3
     assert registered["changed"] == {"slower": 0.5}
+
+
+def test_the_repeated_drives_second_look_is_reproduced_with_the_first_looks_drivers_and_targets():
+    registered = json.loads((REGISTERED.parent / "repeat_second_look.json").read_text())
+    assert registered == json.loads(json.dumps(follow.repeat_second_look()))
+    first = json.loads(REGISTERED.read_text())["repeat"]
+    assert registered["repeat"]["targets"] == first["targets"]
+    assert registered["repeat"]["population_seed"] == first["population_seed"]
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    assert registered["options"] == BELIEF_DEFAULTS and registered["one_look"]
 
 
 def test_the_repeat_schedule_drives_each_driver_five_times_in_its_class():
