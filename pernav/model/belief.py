@@ -332,7 +332,7 @@ class ReactionBelief:
 
     def slower_than(self, reaction_time: float) -> float:
         """The posterior probability that ``R`` exceeds ``reaction_time`` (s)."""
-        return float(self.weights()[self.GRID > math.log(reaction_time)].sum())
+        return _mass_above(self.weights(), self.GRID, math.log(reaction_time))
 
     def interval(self, level: float = 0.9) -> tuple[float, float]:
         """The central ``level`` credible interval of ``R`` (s)."""
@@ -355,16 +355,20 @@ class ReactionBelief:
         never make it earlier than explore's."""
         average = explore_policy().driver
         belief: dict[str, Any] = {}
-        upper = math.exp(self.mean + self.quantile * self.sd)
-        if upper > average.reaction_time and self.slower_than(average.reaction_time) >= self.slower:
+        joint = self.joint()  # once: each moment below would otherwise smooth and normalize the posterior again
+        w = joint if joint.dim() == 1 else joint.sum(1)
+        mean, sd = _moments(w, self.GRID)
+        upper = math.exp(mean + self.quantile * sd)
+        if upper > average.reaction_time and _mass_above(w, self.GRID, math.log(average.reaction_time)) >= self.slower:
             belief["reaction_time"] = round(upper, 4)
             if guard:
-                low = min(math.exp(self.mean - self.quantile * self.sd), average.reaction_time)
+                low = min(math.exp(mean - self.quantile * sd), average.reaction_time)
                 quick = dataclasses.replace(average, reaction_time=low)
                 belief["fastest"] = {"reaction_time": round(quick.reaction_draw(-1.645), 4),
                                      "decision_time": average.decision_time}
         if self.decision is not None and self.outcomes:
-            rise = (self.decision_mean + self.quantile * self.decision_sd) - self.decision.upper(self.quantile)
+            d_mean, d_sd = _moments(joint.sum(0), self.D_GRID)
+            rise = (d_mean + self.quantile * d_sd) - self.decision.upper(self.quantile)
             if rise > 0.0:
                 belief["decision_time"] = round(average.decision_time + rise, 4)
         return belief
@@ -408,6 +412,11 @@ def _moments(weights: torch.Tensor, grid: torch.Tensor) -> tuple[float, float]:
     """Mean and SD of a distribution on a grid."""
     mean = float((weights * grid).sum())
     return mean, float(((weights * (grid - mean) ** 2).sum()).sqrt())
+
+
+def _mass_above(weights: torch.Tensor, grid: torch.Tensor, value: float) -> float:
+    """The probability mass of a distribution on a grid above ``value``."""
+    return float(weights[grid > value].sum())
 
 
 def _central(weights: torch.Tensor, grid: torch.Tensor, level: float) -> tuple[float, float]:

@@ -7,8 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from navigation_helpers import shared_folder
-from study_helpers import smoke_reference, without_wall_time
+from study_helpers import shared_study, smoke_reference, without_wall_time
 
 from pernav.cli import main
 from pernav.study import ScheduleError, StudyConfig, load_schedule, paper_schedule, parse_schedule, preset, run_study
@@ -36,12 +35,7 @@ def _two_towns() -> StudyConfig:
 @pytest.fixture(scope="module")
 def two_workers(tmp_path_factory) -> tuple[Path, dict]:
     """:func:`_two_towns` on a pool of two workers (run once per session)."""
-
-    def build(out: Path) -> None:
-        results = run_study(_two_towns(), out, workers=2)
-        assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
-
-    out = shared_folder(tmp_path_factory, "smoke_two_workers", build)
+    out = shared_study(tmp_path_factory, "smoke_two_workers", _two_towns(), workers=2)
     return out, json.loads((out / "results.json").read_text())
 
 
