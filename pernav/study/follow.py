@@ -38,7 +38,7 @@ from pernav.world.drivers import resolve
 __all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
            "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
            "plot_sweep_leads", "preregistration", "repeat_schedule", "repeat_second_look", "second_look", "spearman",
-           "third_look"]
+           "third_look", "third_version_looks"]
 
 #: the sweep's study seeds for this look (fresh: never run before this pre-registration)
 SWEEP_SEEDS = (200, 201, 202, 203)
@@ -96,6 +96,11 @@ THIRD_LOOK_SPLIT_SEEDS = tuple(range(132, 148))
 #: the repeated drives' second look (one, fixed before it ran): the personalization curve had run with the first
 #: version only; the learner as it is now (the decision time, the drift, ``slower``) drives the same drivers again
 REPEAT_SECOND_LOOK_SEEDS = (404, 405, 406, 407)
+#: the third version's looks at the sweep (its third look) and at the headroom benchmark on fresh seeds (its second),
+#: one each, fixed before they ran: both had been judged with earlier versions only (the sweep with the second, the
+#: headroom benchmark with the first), and ``slower`` can move the sweep's quick points
+THIRD_VERSION_SWEEP_SEEDS = (220, 221, 222, 223)
+THIRD_VERSION_HEADROOM_SEEDS = (310, 311, 312, 313, 314, 315)
 
 
 def repeat_schedule() -> list[Entry]:
@@ -159,6 +164,20 @@ def repeat_second_look() -> dict[str, Any]:
             "why": "the first look ran the first version (reaction time only); the options have changed since",
             "repeat": {"preset": "repeat", "population_seed": REPEAT_POPULATION_SEED, "drivers_per_half": REPEAT_DRIVERS,
                        "drives": REPEAT_DRIVES, "seeds": list(REPEAT_SECOND_LOOK_SEEDS), "targets": REPEAT_TARGETS}}
+
+
+def third_version_looks() -> dict[str, Any]:
+    """The third version's sweep and headroom looks, as fixed before they ran (JSON-ready): fresh seeds, the same
+    targets and methods as their earlier looks, the learner's options as committed."""
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    methods = ["explore", "timing", "belief", "oracle"]
+    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "one_look": True,
+            "why": "neither the sweep nor the headroom benchmark had run the third version (``slower``)",
+            "sweep": {"preset": "personal_sweep", "methods": methods, "seeds": list(THIRD_VERSION_SWEEP_SEEDS),
+                      "look": 3, "targets": SWEEP_TARGETS},
+            "headroom": {"preset": "personal", "methods": methods, "seeds": list(THIRD_VERSION_HEADROOM_SEEDS),
+                         "look": 2, "targets": HEADROOM_FRESH_TARGETS}}
 
 
 def spearman(x: list[float], y: list[float]) -> float:

@@ -47,7 +47,7 @@ def test_the_pre_registration_is_reproduced():
 
     looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS,
              follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS, follow.THIRD_LOOK_SPLIT_SEEDS,
-             follow.REPEAT_SECOND_LOOK_SEEDS]
+             follow.REPEAT_SECOND_LOOK_SEEDS, follow.THIRD_VERSION_SWEEP_SEEDS, follow.THIRD_VERSION_HEADROOM_SEEDS]
     assert all(not set(a) & set(b) for a, b in itertools.combinations(looks, 2))
 
 
@@ -66,6 +66,17 @@ def test_the_third_look_is_reproduced_and_judges_the_learner_as_committed():
 
     assert registered["options"] == BELIEF_DEFAULTS and registered["one_look"] and registered["look"] == 3
     assert registered["changed"] == {"slower": 0.5}
+
+
+def test_the_third_versions_sweep_and_headroom_looks_are_reproduced_with_their_earlier_targets():
+    registered = json.loads((REGISTERED.parent / "third_version_looks.json").read_text())
+    assert registered == json.loads(json.dumps(follow.third_version_looks()))
+    first = json.loads(REGISTERED.read_text())
+    assert registered["sweep"]["targets"] == first["sweep"]["targets"]
+    assert registered["headroom"]["targets"] == first["headroom"]["targets"]
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    assert registered["options"] == BELIEF_DEFAULTS and registered["one_look"]
 
 
 def test_the_repeated_drives_second_look_is_reproduced_with_the_first_looks_drivers_and_targets():
