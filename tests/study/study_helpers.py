@@ -42,14 +42,14 @@ def without_wall_time(results: dict) -> dict:
     return json.loads(json.dumps({k: v for k, v in results.items() if k != "wall_time"}))
 
 
-def shared_study(tmp_path_factory, name: str, cfg: Any = None, workers: int = 1, ray: bool = False) -> Path:
-    """The study ``cfg`` (default: the smoke preset, Town1) with ``workers`` (on a local Ray cluster with ``ray``),
-    run once per test session (:func:`shared_folder`): the tests that compare an interrupted, resumed, parallel or
-    Ray-run study against it do not each run it again. Returns the study folder."""
+def shared_study(tmp_path_factory, name: str, cfg: Any = None, workers: int = 1) -> Path:
+    """The study ``cfg`` (default: the smoke preset, Town1) with ``workers``, run once per test session
+    (:func:`shared_folder`): the tests that compare an interrupted, resumed, parallel or Ray-run study against it do
+    not each run it again. Returns the study folder."""
     from pernav.study import preset, run_study
 
     def build(out: Path) -> None:
-        results = run_study(preset("smoke") if cfg is None else cfg, out, workers=workers, ray=ray)
+        results = run_study(preset("smoke") if cfg is None else cfg, out, workers=workers)
         assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
 
     return shared_folder(tmp_path_factory, name, build)

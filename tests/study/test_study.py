@@ -23,9 +23,9 @@ def _smoke(towns: list[str]):
 
 
 def _two_towns() -> StudyConfig:
-    """The smoke study of Town1 and Town2, Town2 without the last round: each town is a task of its own, Town1 the
-    whole smoke study, which the study's own process runs in :func:`smoke_reference`; Town2 (its offline round and
-    an online one, every method) is the town beside it and the schema's second town."""
+    """The smoke study of Town1 and Town2, Town2 without the last round: each town runs in a worker of its own,
+    Town1 the whole smoke study, which the study's own process runs in :func:`smoke_reference`; Town2 (its offline
+    round and an online one, every method) is the town beside it and the schema's second town."""
     cfg = _smoke(["Town1", "Town2"])
     *rounds, last = cfg.schedule
     cfg.schedule = [*rounds, dataclasses.replace(last, towns=("Town1",))]
@@ -33,18 +33,15 @@ def _two_towns() -> StudyConfig:
 
 
 @pytest.fixture(scope="module")
-def two_towns_on_ray(tmp_path_factory) -> tuple[Path, dict]:
-    """:func:`_two_towns` on a local Ray cluster of two CPUs, towns and their episodes Ray tasks (run once per
-    session). The process pool's run is the SIGKILL test's (tests/study/test_reliability.py)."""
-    import ray  # noqa: F401  (an install without the ray extra must fail here, not skip)
-
-    out = shared_study(tmp_path_factory, "smoke_two_towns_on_ray", _two_towns(), workers=2, ray=True)
+def two_workers(tmp_path_factory) -> tuple[Path, dict]:
+    """:func:`_two_towns` on a pool of two workers (run once per session)."""
+    out = shared_study(tmp_path_factory, "smoke_two_workers", _two_towns(), workers=2)
     return out, json.loads((out / "results.json").read_text())
 
 
 @pytest.mark.slow
-def test_smoke_results_match_the_schema(two_towns_on_ray):
-    out, on_disk = two_towns_on_ray
+def test_smoke_results_match_the_schema(two_workers):
+    out, on_disk = two_workers
     assert {"config", "iterations", "summary"} <= set(on_disk)
     labels = [it["label"] for it in on_disk["iterations"]]
     assert labels == ["Offline 0", "Online 0", "Online 8"]
@@ -73,13 +70,10 @@ def test_smoke_results_match_the_schema(two_towns_on_ray):
 
 
 @pytest.mark.slow
-def test_a_towns_results_are_the_same_in_one_process_and_on_ray_beside_another_town(two_towns_on_ray,
-                                                                                     tmp_path_factory):
-    """Town1 run as a Ray task beside Town2, its episodes Ray tasks too, gives what it gives alone in the study's
-    own process."""
+def test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers(two_workers, tmp_path_factory):
+    """Town1 run in a worker process beside Town2 gives what it gives alone in the study's own process."""
     one = smoke_reference(tmp_path_factory)
-    two = without_wall_time(two_towns_on_ray[1])
-    assert two_towns_on_ray[1]["wall_time"]["ray"] is True
+    two = without_wall_time(two_workers[1])
     assert [it["towns"]["Town1"] for it in two["iterations"]] == [it["towns"]["Town1"] for it in one["iterations"]]
     for key in ("summary", "regret", "diagnostics"):
         assert two[key]["Town1"] == one[key]["Town1"], key
