@@ -131,6 +131,15 @@ def preregistration() -> dict[str, Any]:
                          "cells": classify(personal_schedule(), towns)}}
 
 
+def _look(options: dict[str, Any] | None = None, **parts: Any) -> dict[str, Any]:
+    """A later look's registration (JSON-ready): the belief learner with ``options`` (default: as committed), read
+    once, and ``parts`` (the look's number, why it ran, each benchmark's preset, seeds and targets)."""
+    from pernav.study.config import BELIEF_DEFAULTS
+
+    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS if options is None else options), "one_look": True,
+            **parts}
+
+
 def second_look() -> dict[str, Any]:
     """The second look at the changed learner, as fixed before it ran (JSON-ready): the sweep and the split benchmark
     on fresh seeds, the same targets as their first looks, with the learner's options as committed."""
@@ -138,46 +147,39 @@ def second_look() -> dict[str, Any]:
     from pernav.study.headroom import SPLIT_TARGETS
 
     options = {k: v for k, v in BELIEF_DEFAULTS.items() if k not in THIRD_LOOK_CHANGES}  # as they were then
-    return {"learner": "belief", "options": options, "changed": SECOND_LOOK_CHANGES, "one_look": True,
-            "look": 2, "sweep": {"preset": "personal_sweep", "seeds": list(SECOND_LOOK_SWEEP_SEEDS),
-                                 "targets": SWEEP_TARGETS},
-            "split": {"preset": "split", "seeds": list(SECOND_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
+    return _look(options, changed=SECOND_LOOK_CHANGES, look=2,
+                 sweep={"preset": "personal_sweep", "seeds": list(SECOND_LOOK_SWEEP_SEEDS), "targets": SWEEP_TARGETS},
+                 split={"preset": "split", "seeds": list(SECOND_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS})
 
 
 def third_look() -> dict[str, Any]:
     """The split benchmark's third look, as fixed before it ran (JSON-ready): fresh seeds, the same targets as its
     first two looks, the learner's options as committed. A look repeated because the one before missed a target."""
-    from pernav.study.config import BELIEF_DEFAULTS
     from pernav.study.headroom import SPLIT_TARGETS
 
-    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "changed": THIRD_LOOK_CHANGES, "one_look": True,
-            "look": 3, "why": "the second look missed the quick half's 'turn' lead (+0.35 s against at most 0.3)",
-            "split": {"preset": "split", "seeds": list(THIRD_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS}}
+    return _look(changed=THIRD_LOOK_CHANGES, look=3,
+                 why="the second look missed the quick half's 'turn' lead (+0.35 s against at most 0.3)",
+                 split={"preset": "split", "seeds": list(THIRD_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS})
 
 
 def repeat_second_look() -> dict[str, Any]:
     """The repeated drives' second look, as fixed before it ran (JSON-ready): the same drivers and targets as the
     first look (:func:`preregistration`), fresh seeds, the learner's options as committed."""
-    from pernav.study.config import BELIEF_DEFAULTS
-
-    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "one_look": True, "look": 2,
-            "why": "the first look ran the first version (reaction time only); the options have changed since",
-            "repeat": {"preset": "repeat", "population_seed": REPEAT_POPULATION_SEED, "drivers_per_half": REPEAT_DRIVERS,
-                       "drives": REPEAT_DRIVES, "seeds": list(REPEAT_SECOND_LOOK_SEEDS), "targets": REPEAT_TARGETS}}
+    return _look(look=2, why="the first look ran the first version (reaction time only); the options have changed since",
+                 repeat={"preset": "repeat", "population_seed": REPEAT_POPULATION_SEED,
+                         "drivers_per_half": REPEAT_DRIVERS, "drives": REPEAT_DRIVES,
+                         "seeds": list(REPEAT_SECOND_LOOK_SEEDS), "targets": REPEAT_TARGETS})
 
 
 def third_version_looks() -> dict[str, Any]:
     """The third version's sweep and headroom looks, as fixed before they ran (JSON-ready): fresh seeds, the same
     targets and methods as their earlier looks, the learner's options as committed."""
-    from pernav.study.config import BELIEF_DEFAULTS
-
     methods = ["explore", "timing", "belief", "oracle"]
-    return {"learner": "belief", "options": dict(BELIEF_DEFAULTS), "one_look": True,
-            "why": "neither the sweep nor the headroom benchmark had run the third version (``slower``)",
-            "sweep": {"preset": "personal_sweep", "methods": methods, "seeds": list(THIRD_VERSION_SWEEP_SEEDS),
-                      "look": 3, "targets": SWEEP_TARGETS},
-            "headroom": {"preset": "personal", "methods": methods, "seeds": list(THIRD_VERSION_HEADROOM_SEEDS),
-                         "look": 2, "targets": HEADROOM_FRESH_TARGETS}}
+    return _look(why="neither the sweep nor the headroom benchmark had run the third version (``slower``)",
+                 sweep={"preset": "personal_sweep", "methods": methods, "seeds": list(THIRD_VERSION_SWEEP_SEEDS),
+                        "look": 3, "targets": SWEEP_TARGETS},
+                 headroom={"preset": "personal", "methods": methods, "seeds": list(THIRD_VERSION_HEADROOM_SEEDS),
+                           "look": 2, "targets": HEADROOM_FRESH_TARGETS})
 
 
 def spearman(x: list[float], y: list[float]) -> float:
