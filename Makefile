@@ -11,11 +11,15 @@ setup: $(STAMP)
 
 # torch is pinned first so that the project's `torch>=` range resolves to the local CPU wheel
 # instead of pulling a multi-GB CUDA build from PyPI's default index.
+# uv installs the same versions as pip in about 6 s instead of 50 (a third of the time over `make test`'s budget on
+# a fresh machine); it does not read pip's configuration, so pip's wheel folder is passed on. Where uv cannot be
+# installed or cannot reach an index, pip does it all as before.
+WHEELS ?= $(or $(PIP_FIND_LINKS),$(wildcard /opt/wheels))
+UV := $(BIN)/uv pip install -q --python $(BIN)/python $(if $(WHEELS),--find-links $(WHEELS))
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q torch==2.13.0
-	$(BIN)/pip install -q -e ".[dev,ray]"
+	($(BIN)/pip install -q uv && $(UV) torch==2.13.0 && $(UV) -e ".[dev,ray]") || \
+	  ($(BIN)/pip install -q --upgrade pip && $(BIN)/pip install -q torch==2.13.0 && $(BIN)/pip install -q -e ".[dev,ray]")
 	touch $(STAMP)
 
 study: $(STAMP)
