@@ -15,7 +15,7 @@ setup: $(STAMP)
 # a fresh machine); it does not read pip's configuration, so pip's wheel folder is passed on. Where uv cannot be
 # installed or cannot reach an index, pip does it all as before.
 WHEELS ?= $(or $(PIP_FIND_LINKS),$(wildcard /opt/wheels))
-UV := $(BIN)/uv pip install -q --compile-bytecode --python $(BIN)/python $(if $(WHEELS),--find-links $(WHEELS))
+UV := $(BIN)/uv pip install -q --compile-bytecode --python $(BIN)/python $(foreach w,$(WHEELS),--find-links $(w))
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	($(BIN)/pip install -q uv && $(UV) torch==2.13.0 && $(UV) -e ".[dev,ray]") || \
