@@ -41,7 +41,7 @@ from torchrl.envs import EnvBase
 
 from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PANEL
-from pernav.env.torchrl_env import explore_module
+from pernav.env.torchrl_env import explore_module, navigation_of
 from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
@@ -94,7 +94,7 @@ def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2
     for ep in range(episodes):
         env = driver_env(driver, town, ep, 900 + ep, next(iter(models.values()))[0].dynamics.K)
         td = env.reset()
-        nav = env.base_env._env
+        nav = navigation_of(env)
         for _t in range(400):
             future = td["explore_future"]
             if bool(future[1:5].any()) and not bool(future[0]):

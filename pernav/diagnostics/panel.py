@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from pernav.diagnostics.true_model import TrueDynamicsEnv
-from pernav.env.torchrl_env import explore_module, oracle_module
+from pernav.env.torchrl_env import explore_module, navigation_of, oracle_module
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.study.stats import gap_closed, paired_difference
 from pernav.trainer.collect import episode_metrics, history_env
@@ -70,7 +70,7 @@ def _policy(job: PanelJob, env: Any) -> Any:
     kind, _, backend = job.method.partition("@")
     options = {"kind": kind, **job.planner}
     if backend == "true":
-        return build_planner(TrueDynamicsEnv(env.base_env._env, samples=job.samples, seed=job.seed), options)
+        return build_planner(TrueDynamicsEnv(navigation_of(env), samples=job.samples, seed=job.seed), options)
     if backend == "learned" and job.model is not None:
         from pernav.model.dynamics import DynamicsModel
         from pernav.model.navigation import ImaginedNavigationEnv, make_world_model

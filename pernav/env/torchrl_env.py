@@ -37,6 +37,7 @@ __all__ = [
     "explore_module",
     "info_action_module",
     "make_torchrl_env",
+    "navigation_of",
     "oracle_module",
     "planning_arrays",
 ]
@@ -114,6 +115,11 @@ class NavigationTorchRLEnv(GymWrapper):
         super().__init__(env=env, categorical_action_encoding=True, **kwargs)
         self.reset_options: dict[str, Any] = dict(reset_options or {})
 
+    @property
+    def navigation(self) -> NavigationEnv:
+        """The :class:`NavigationEnv` this wrapper drives (the world, the route, the driver): the public way to it."""
+        return self._env
+
     def set_reset_options(self, options: Mapping[str, Any] | None) -> None:
         """Replace the options used by later resets (dispatched to workers inside batched envs)."""
         self.reset_options = dict(options or {})
@@ -150,6 +156,19 @@ def make_torchrl_env(town: str = "Town1", config: dict[str, Any] | None = None,
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def navigation_of(env: EnvBase) -> NavigationEnv:
+    """The :class:`NavigationEnv` inside a TorchRL env made by :func:`make_torchrl_env`, transformed or not.
+
+    >>> navigation_of(make_torchrl_env(config={"n_traffic": 2})).town.name
+    'Town1'
+    """
+    base = getattr(env, "base_env", env)
+    if not isinstance(base, NavigationTorchRLEnv):
+        raise TypeError(f"env: expected an env made by make_torchrl_env (a NavigationTorchRLEnv inside), got "
+                        f"{type(base).__name__}")
+    return base.navigation
 
 
 def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:

@@ -187,7 +187,7 @@ class PlaySession:
                  ready: bool | None = None, countdown: float = 3.0, title: str | None = None,
                  notice: str | None = None, hide_cost: bool = False, calibrate: bool = False,
                  progress: str | None = None, view: Any = None) -> None:
-        from pernav.env.torchrl_env import explore_module, oracle_module
+        from pernav.env.torchrl_env import explore_module, navigation_of, oracle_module
         from pernav.trainer.collect import history_env
 
         _check_drive_arguments(town, route, policy, playback, seed, fps, countdown)
@@ -205,7 +205,7 @@ class PlaySession:
         config = {"n_traffic": int(n_traffic), "adaptive_speed": playback != "normal", **dict(env_config or {})}
         options = {"route": int(route), "user": profile, "context": ctx_dict}
         self.env = history_env(town, options, config=config, seed=int(seed), K=K)
-        self.nav = self.env.base_env._env  # the NavigationEnv inside the TorchRL wrapper
+        self.nav = navigation_of(self.env)
         if isinstance(policy, str):
             module = explore_module() if policy == "explore" else oracle_module()
             self.policy = _with_playback(module, playback) if playback != "normal" else module

@@ -51,9 +51,20 @@ ACTION_NAMES = (
 PLAYBACK = ("slower", "normal", "faster")
 PLAYBACK_SCALE = {"slower": 1.3, "normal": 1.0, "faster": 0.75}
 AUDIO_DURATION = (0.0, 1.2, 1.2, 1.9, 1.9, 1.6, 1.2)  # seconds at normal playback
-N_INSTRUCTIONS = len(ACTION_NAMES)
+N_INSTRUCTIONS = len(ACTION_NAMES)  # the action space of the navigation: 7 instructions
+N_PLAYBACKS = len(PLAYBACK)
+N_ADAPTIVE_ACTIONS = N_INSTRUCTIONS * N_PLAYBACKS  # with ``adaptive_speed``: each instruction at each playback, 21
 # everything but silence refers to a junction or a roundabout
 TURN_INSTRUCTIONS = tuple(i for i in Instruction if i != Instruction.NONE)
+
+
+def n_actions(adaptive_speed: bool) -> int:
+    """The size of the navigation's action space: the instructions, or each at each playback speed.
+
+    >>> n_actions(False), n_actions(True)
+    (7, 21)
+    """
+    return N_ADAPTIVE_ACTIONS if adaptive_speed else N_INSTRUCTIONS
 
 
 def audio_duration(instruction: int, playback: str = "normal") -> float:
