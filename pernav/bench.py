@@ -462,7 +462,7 @@ def bench_play(quick: bool = False, screenshots: str | None = None, live: bool =
 
 
 def bench_timing(quick: bool = False) -> dict[str, Any]:
-    """Decision time of the timing learner (:mod:`pernav.model.timing`): per step, explore's rule re-timed for a
+    """Decision time of the timing learner (:mod:`pernav.learners.timing`): per step, explore's rule re-timed for a
     belief (the env computes it beside explore's own action, so the reference is explore's rule alone, same
     states); per round, the belief read from tau (features and the ridge prediction). The model is fitted on
     synthetic features (its decision time does not depend on what it learned)."""
@@ -471,7 +471,7 @@ def bench_timing(quick: bool = False) -> dict[str, Any]:
     from pernav.env.navigation import NavigationEnv
     from pernav.env.policies import belief_policy, explore_policy
     from pernav.env.torchrl_env import explore_module
-    from pernav.model.timing import N_FEATURES, TimingModel
+    from pernav.learners.timing import N_FEATURES, TimingModel
     from pernav.trainer.collect import drive, history_env
 
     env = NavigationEnv("Town3", config={"n_traffic": 8})
@@ -502,7 +502,7 @@ def bench_timing(quick: bool = False) -> dict[str, Any]:
 
 
 def bench_belief(quick: bool = False) -> dict[str, Any]:
-    """The belief learner (:mod:`pernav.model.belief`) inside a drive: per step, the tracker's update (reading each
+    """The belief learner (:mod:`pernav.learners.belief`) inside a drive: per step, the tracker's update (reading each
     answer whose window closed and each announced junction's outcome; the step's work beside the world's frames) and
     the prompt decision of the rule re-timed for the belief it gives, against explore's rule on the same states. The
     belief is the joint one (reaction and decision time); the detectors are untrained (their cost does not depend on
@@ -511,8 +511,8 @@ def bench_belief(quick: bool = False) -> dict[str, Any]:
 
     from pernav.env.navigation import NavigationEnv
     from pernav.env.policies import belief_policy, explore_policy
-    from pernav.model.belief import AnswerDetector, BeliefTracker, DecisionPrior, ReactionBelief
-    from pernav.model.outcomes import SwerveDetector
+    from pernav.learners.belief import AnswerDetector, BeliefTracker, DecisionPrior, ReactionBelief
+    from pernav.learners.outcomes import SwerveDetector
 
     env = NavigationEnv("Town3", config={"n_traffic": 8})
     _, info = env.reset(seed=0, options={"route": 1, "user": "user3"})

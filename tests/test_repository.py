@@ -128,12 +128,12 @@ def test_every_path_pointed_into_a_commit_is_in_that_commit() -> None:
     assert not gone, gone
 
 
-# ----- the layers: world → env → transforms → model → planner → trainer → study, then play and diagnostics ---------
+# ----- the layers: world → env → transforms → model → planner → trainer → learners → study, then play, diagnostics --
 # A module imports only from its own layer or a lower one. play and diagnostics sit side by side on top (either may
-# import any layer, not each other); the package's entry points (pernav/__init__.py, cli.py, bench.py) sit above
+# import any layer, not each other); the package's entry points (pernav/__init__.py and the cli package) sit above
 # them all, and pernav/_lazy.py (the packages' lazy exports) below them all.
-LAYERS = {"_lazy": -1, "world": 0, "env": 1, "transforms": 2, "model": 3, "planner": 4, "trainer": 5, "study": 6,
-          "play": 7, "diagnostics": 7, "entry points": 8}
+LAYERS = {"_lazy": -1, "world": 0, "env": 1, "transforms": 2, "model": 3, "planner": 4, "trainer": 5, "learners": 6,
+          "study": 7, "play": 8, "diagnostics": 8, "cli": 9, "entry points": 9}
 _MODULE = re.compile(r"pernav(?:\.\w+)+")  # a module named in a string: a lazy export, importlib, an entry point
 
 

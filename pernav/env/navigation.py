@@ -78,7 +78,7 @@ DEFAULT_CONFIG: dict[str, Any] = {
     # what the navigation believes of its user (a mapping of Driver fields over the average driver's, e.g. a
     # learner's estimate of its reaction and decision times): info then carries "belief_action", the explore
     # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. A BeliefSource (e.g.
-    # pernav.model.belief.BeliefTracker) is a belief updated within the drive from each prompt's answer: a copy of it
+    # pernav.learners.belief.BeliefTracker) is a belief updated within the drive from each prompt's answer: a copy of it
     # follows the drive (``env.tracker``) and info also carries "belief_reaction", its reaction time now. None: off
     "belief": None,
 }

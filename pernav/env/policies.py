@@ -178,7 +178,7 @@ BELIEF_FIELDS = ("reaction_time", "decision_time", "turn_speed", "comfort_decel"
 @runtime_checkable
 class BeliefSource(Protocol):
     """A belief about the user that the navigation updates as a drive goes on (``NavigationEnv``'s
-    ``config["belief"]``; :class:`pernav.model.belief.BeliefTracker` is one). It reads what the navigation played and
+    ``config["belief"]``; :class:`pernav.learners.belief.BeliefTracker` is one). It reads what the navigation played and
     what it sensed of the car, never the driver's profile."""
 
     def copy(self) -> BeliefSource:

@@ -24,7 +24,7 @@ import torch
 
 from pernav.env.policies import belief_policy
 from pernav.env.torchrl_env import info_action_module
-from pernav.model.belief import BeliefTracker
+from pernav.learners.belief import BeliefTracker
 from pernav.play.controls import ScriptedControls
 from pernav.play.loop import PlayError, PlaySession
 from pernav.play.personal import PersonalResult, _policy_row, study_settings, summary_markdown

@@ -27,12 +27,12 @@ __all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "RENAMED_OPTIONS"
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau_policy choices
 LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
-# the timing learner (pernav.model.timing): simulated population drivers it learns from offline per town, the
+# the timing learner (pernav.learners.timing): simulated population drivers it learns from offline per town, the
 # ridge penalty, the residual SDs its belief adds to the predicted mean, the gate (s earlier than explore), and the
 # guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon, nor
 # before the car is inside the last junction box before the one meant)
 TIMING_DEFAULTS: dict[str, Any] = {"offline_drivers": 48, "l2": 3.0, "quantile": 1.5, "gate": 0.0, "guard": 1}
-# the belief learner (pernav.model.belief): simulated population drivers whose prompts' answers train its detector per
+# the belief learner (pernav.learners.belief): simulated population drivers whose prompts' answers train its detector per
 # town, the detector's timing noise (log s) and outlier share in the likelihood, the posterior SDs above the mean that
 # the prompts are timed for, the guard (as the timing learner's), decision (1: a posterior over the decision time
 # too, from the announced junctions' swerves and missed turns; 0: the reaction time only) and drift (SD of a driver's

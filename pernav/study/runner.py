@@ -39,18 +39,18 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
-from pernav.model.belief import BeliefTracker
+from pernav.learners.belief import BeliefTracker
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-from pernav.model.timing import TARGETS as TIMING_TARGETS
-from pernav.model.timing import TimingModel, timing_features
+from pernav.learners.timing import TARGETS as TIMING_TARGETS
+from pernav.learners.timing import TimingModel, timing_features
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
-from pernav.trainer.answers import fit_belief, labelled_drives
+from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
 from pernav.trainer.drives import load_drive
@@ -405,7 +405,7 @@ def _calibrate(cfg: StudyConfig, town: str, entry: Entry, index: int, learners: 
 def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
     """The timing learner's offline phase: ``cfg.timing["offline_drivers"]`` simulated drivers of the population
     prior each drive one explore route of ``town``; their drives' features and their effective reaction and
-    decision times (known: they are simulated) fit the :class:`~pernav.model.timing.TimingModel`."""
+    decision times (known: they are simulated) fit the :class:`~pernav.learners.timing.TimingModel`."""
     options = cfg.timing
     population = Population(seed=derive_seed(cfg.seed, town, "timing", "population"))
     rng = random.Random(derive_seed(cfg.seed, town, "timing", "routes"))
@@ -426,8 +426,8 @@ def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
 def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
     """The belief learner's offline phase: ``cfg.belief["offline_drivers"]`` simulated drivers of the population prior
     each drive one explore route of ``town``; each heard prompt's answer window, labelled with the moment it took
-    effect (known: they are simulated), trains the :class:`~pernav.model.belief.AnswerDetector`, and their reaction
-    times give the prior (:func:`pernav.trainer.answers.fit_belief`)."""
+    effect (known: they are simulated), trains the :class:`~pernav.learners.belief.AnswerDetector`, and their reaction
+    times give the prior (:func:`pernav.learners.answers.fit_belief`)."""
     options = cfg.belief
     drives = labelled_drives(town, int(options["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
                              derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic},

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from pernav.cli import main
-from pernav.model.belief import ReactionBelief
+from pernav.learners.belief import ReactionBelief
 from pernav.play.believe import BeliefSession, belief_markdown, prompt_lead, session_class
 from pernav.play.loop import PlayError
 from pernav.play.personal import PersonalSession

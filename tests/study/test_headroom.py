@@ -66,7 +66,7 @@ import torch  # noqa: E402
 
 from pernav.env.policies import belief_policy  # noqa: E402
 from pernav.env.torchrl_env import explore_module  # noqa: E402
-from pernav.model.timing import FEATURES, N_FEATURES, TimingModel, timing_features  # noqa: E402
+from pernav.learners.timing import FEATURES, N_FEATURES, TimingModel, timing_features  # noqa: E402
 from pernav.trainer.collect import drive, history_env  # noqa: E402
 from pernav.world.drivers import Population  # noqa: E402
 

@@ -3,7 +3,7 @@ explore drives of a driver reads its log reaction time (held-out R^2), how often
 ``--decision``, the same for the decision time.
 
 The detector, prior (and with ``--decision`` the swerve detector and the decision time's likelihood) are fitted as
-the study fits them (pernav.trainer.answers.fit_belief, the study's defaults: 96 drivers, 4 traffic cars) on
+the study fits them (pernav.learners.answers.fit_belief, the study's defaults: 96 drivers, 4 traffic cars) on
 Population(seed=TRAIN); they read 50 other drivers, Population(seed=TEST), each driving five explore routes (route and
 world seeds 12-16). About 4 minutes per town on one core.
 
@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from pernav.model.belief import ReactionBelief
+from pernav.learners.belief import ReactionBelief
 from pernav.study.config import BELIEF_DEFAULTS
-from pernav.trainer.answers import drive_outcomes, fit_belief, labelled_drives
+from pernav.learners.answers import drive_outcomes, fit_belief, labelled_drives
 
 ROUTE_SEED, N_TRAIN, N_TEST, DRIVE_SEEDS = 11, 96, 50, (12, 13, 14, 15, 16)
 

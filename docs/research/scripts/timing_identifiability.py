@@ -3,7 +3,7 @@
 Simulated drivers of the population prior each drive one explore route. For each drive this prints the driver's
 effective reaction and decision times, explore's share of late "turn" prompts and its excess over the oracle's
 (:func:`pernav.env.policies.lateness`, from the profile), and what the navigation sees: the 12
-:func:`pernav.model.timing.timing_features` and the delay (steps) from each "prepare" prompt said at speed to the
+:func:`pernav.learners.timing.timing_features` and the delay (steps) from each "prepare" prompt said at speed to the
 first step in which the car slows. It then reports each feature's AUC for the late class (excess >= 0.05) and the
 leave-one-out R^2 of ridge regressions of log reaction time, log decision time, the excess and the oracle's "turn"
 lead (s at 10 m/s). With ``--tau-policy retimed`` the drive is explore re-timed at random on every prompt it can move
@@ -24,7 +24,7 @@ import numpy as np
 
 from pernav.env.policies import lateness, oracle_policy
 from pernav.env.torchrl_env import explore_module
-from pernav.model.timing import FEATURES, timing_features
+from pernav.learners.timing import FEATURES, timing_features
 from pernav.planner.retiming import RetimedExplore
 from pernav.study import runner
 from pernav.study.config import preset

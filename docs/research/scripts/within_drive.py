@@ -5,7 +5,7 @@ Development drivers of the population prior (never the benchmark's) each drive o
 evaluation routes. On each evaluation route (same seed for every policy, so the episodes are paired) this drives:
 
 - explore and the oracle;
-- ``timing``: the learner as the study runs it (the belief read from tau, :class:`pernav.model.timing.TimingModel`,
+- ``timing``: the learner as the study runs it (the belief read from tau, :class:`pernav.learners.timing.TimingModel`,
   with the options given by ``--timing-option``);
 - ``guarded``: the same belief with the quickest driver the evidence allows (:meth:`TimingModel.fastest`);
 - ``watch``: explore until this drive shows a missed or wrong turn, then explore's rule re-timed for the learner's
@@ -32,7 +32,7 @@ from tensordict.nn import TensorDictModule
 
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
-from pernav.model.timing import timing_features
+from pernav.learners.timing import timing_features
 from pernav.study import runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry

@@ -1,4 +1,4 @@
-"""The belief about a driver from each prompt's answer (pernav.model.belief): the posterior's arithmetic on answers
+"""The belief about a driver from each prompt's answer (pernav.learners.belief): the posterior's arithmetic on answers
 whose moment is known, and the whole chain (frames -> detector -> posterior -> prompts) on simulated drives."""
 
 import math
@@ -10,8 +10,8 @@ from navigation_helpers import shared_value
 from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import belief_policy, explore_policy
 from pernav.env.torchrl_env import explore_module
-from pernav.model.belief import DT, SIGMA, BeliefTracker, ReactionBelief
-from pernav.trainer.answers import fit_belief, labelled_drives
+from pernav.learners.belief import DT, SIGMA, BeliefTracker, ReactionBelief
+from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.trainer.collect import drive, history_env
 from pernav.world.drivers import Context, DriverProfile
 

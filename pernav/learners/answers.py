@@ -1,4 +1,4 @@
-"""Offline data for the belief about a driver (:mod:`pernav.model.belief`): simulated drivers of the population prior
+"""Offline data for the belief about a driver (:mod:`pernav.learners.belief`): simulated drivers of the population prior
 drive explore's prompts, and each heard prompt's answer window is labelled with the frame at which the prompt took
 effect. That moment is known only because the drivers are simulated (the paper's offline MDPs); the belief never sees
 it at round time.
@@ -23,7 +23,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.navigation import NavigationEnv
-from pernav.model.belief import (
+from pernav.learners.belief import (
     Answer,
     AnswerDetector,
     DecisionPrior,
@@ -32,7 +32,7 @@ from pernav.model.belief import (
     frame_series,
     late_probability,
 )
-from pernav.model.outcomes import DECISION_GRID, SwerveDetector, TurnOutcome, turn_outcomes
+from pernav.learners.outcomes import DECISION_GRID, SwerveDetector, TurnOutcome, turn_outcomes
 from pernav.trainer.collect import derive_seed
 from pernav.world.drivers import DriverProfile, Population, resolve
 

@@ -10,14 +10,14 @@ the car, or the prompt was misheard or ignored: then there is no answer to read.
 - :class:`AnswerDetector`, a small network that scores each frame of a prompt's answer window (its audio's end to
   :data:`ANSWER_SPAN` seconds later, or the next prompt) as the moment the prompt took effect, against "no visible
   answer". It is trained offline on simulated drivers of the population prior, whose moments are known (the paper's
-  offline MDPs: :func:`pernav.trainer.answers.offline_answers`); at round time it sees the frames only.
+  offline MDPs: :func:`pernav.learners.answers.offline_answers`); at round time it sees the frames only.
 - :class:`ReactionBelief`, an explicit likelihood on a grid of ``log R``: each answer contributes the lognormal
   density of its candidate delays weighted by the detector, mixed with a flat density for a prompt misread or
   unanswered. Its prior is the population's (fitted on the same offline drivers); the posterior narrows as answers
   accumulate, within a drive (:class:`BeliefTracker`, updated after each answered prompt) and across drives (the
   state carries over). Its spread never falls below the driver's own reading error (``drift``).
 - With a :class:`DecisionPrior`, the posterior is joint over ``R`` and the decision time ``D``: each junction a "turn"
-  prompt announced adds whether a swerve or a missed turn followed (:mod:`pernav.model.outcomes`), whose likelihood
+  prompt announced adds whether a swerve or a missed turn followed (:mod:`pernav.learners.outcomes`), whose likelihood
   under ``(R, D)`` is that the prompt took effect after the moment a driver with decision time ``D`` commits.
 
 What the prompt rules act on is the posterior's ``quantile``-SD upper value when that is later than explore's
@@ -49,7 +49,7 @@ import torch
 from torch import nn
 
 from pernav.env.policies import explore_policy
-from pernav.model.outcomes import DECISION_GRID, SwerveDetector, turn_outcomes
+from pernav.learners.outcomes import DECISION_GRID, SwerveDetector, turn_outcomes
 from pernav.world.constants import PREPARES, SIDED, TURNS
 from pernav.world.drivers import REACTION_CV
 
@@ -266,7 +266,7 @@ class ReactionBelief:
         self.answers += 1
 
     def update_turn(self, room: torch.Tensor, late: bool) -> None:
-        """One announced junction's outcome (:class:`~pernav.model.outcomes.TurnOutcome`): ``room`` ``[H]``, for each
+        """One announced junction's outcome (:class:`~pernav.learners.outcomes.TurnOutcome`): ``room`` ``[H]``, for each
         decision time of :attr:`D_GRID`, the time from its first "turn" prompt's audio end to that driver's commit, and
         whether a swerve or a miss followed (``late``).
 
@@ -430,7 +430,7 @@ def _central(weights: torch.Tensor, grid: torch.Tensor, level: float) -> tuple[f
 @dataclass(frozen=True)
 class DecisionPrior:
     """The population prior of the decision time ``D`` (normal, s) and how a "turn" prompt's lateness shows, all
-    fitted offline on simulated drivers (:func:`pernav.trainer.answers.fit_belief`): ``hit``, the probability that a
+    fitted offline on simulated drivers (:func:`pernav.learners.answers.fit_belief`): ``hit``, the probability that a
     prompt past the commit point shows a swerve or a miss; ``false``, that an in-time one seems to.
 
     >>> prior = DecisionPrior(mean=2.0, sd=0.6, hit=0.6, false=0.01)
@@ -514,7 +514,7 @@ class BeliefTracker:
         self.finish()
 
     def _judge(self, complete: bool) -> bool:
-        """The outcome of each junction announced by a "turn" prompt (:func:`~pernav.model.outcomes.turn_outcomes`)."""
+        """The outcome of each junction announced by a "turn" prompt (:func:`~pernav.learners.outcomes.turn_outcomes`)."""
         if self.swerve is None or self.belief.decision is None or math.isinf(self.junction[-1] if self.junction else 0):
             return False
         pending = [(i, e) for i, e in self.prompts if i in TURNS and e not in self.judged]

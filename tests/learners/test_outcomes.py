@@ -1,4 +1,4 @@
-"""Was a "turn" prompt in time (pernav.model.outcomes), and the decision time's posterior it feeds
+"""Was a "turn" prompt in time (pernav.learners.outcomes), and the decision time's posterior it feeds
 (ReactionBelief.update_turn): outcomes read from synthetic drives whose junctions, misses and swerves are known, the
 swerve detector on separable data, and the posterior's arithmetic against brute force."""
 
@@ -8,8 +8,8 @@ import pytest
 import torch
 
 from pernav.env.policies import belief_policy, explore_policy
-from pernav.model.belief import SIGMA, DecisionPrior, ReactionBelief
-from pernav.model.outcomes import STEP_FEATURES, SwerveDetector, commit_room, step_summaries, turn_outcomes
+from pernav.learners.belief import SIGMA, DecisionPrior, ReactionBelief
+from pernav.learners.outcomes import STEP_FEATURES, SwerveDetector, commit_room, step_summaries, turn_outcomes
 
 TURN, PREPARE = 1, 3  # turn left, prepare left (pernav.world.constants.Instruction)
 

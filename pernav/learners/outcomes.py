@@ -7,11 +7,11 @@ sharp steering) or misses it. Whether that happened is what a navigation can see
 - a **missed turn**: the navigation's own count (it re-routes at the wrong branch);
 - a **swerve**: :class:`SwerveDetector`, a logistic regression on three consecutive steps' summaries of the car's
   frames (braking, deceleration, steering and its jumps), trained offline on simulated drivers whose swerves are
-  known (:func:`pernav.trainer.answers.fit_belief`). At round time it reads the frames only.
+  known (:func:`pernav.learners.answers.fit_belief`). At round time it reads the frames only.
 
 Each announced junction gives one :class:`TurnOutcome`: the slack between its first "turn" prompt's audio end and
 the car reaching the junction, and whether a swerve or a miss followed. The likelihood of that outcome under a
-driver's reaction and decision times is :meth:`pernav.model.belief.ReactionBelief.update_turn`'s.
+driver's reaction and decision times is :meth:`pernav.learners.belief.ReactionBelief.update_turn`'s.
 
 Example:
     >>> frames = torch.zeros(12, 10, 5)
