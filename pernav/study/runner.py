@@ -39,18 +39,18 @@ import torch
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
+from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.learners.belief import BeliefTracker
-from pernav.model.dynamics import DynamicsModel
-from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.learners.timing import TARGETS as TIMING_TARGETS
 from pernav.learners.timing import TimingModel, timing_features
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
 from pernav.study.schedule import Entry
-from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
 from pernav.trainer.drives import load_drive

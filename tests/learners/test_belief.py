@@ -10,8 +10,8 @@ from navigation_helpers import shared_value
 from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import belief_policy, explore_policy
 from pernav.env.torchrl_env import explore_module
-from pernav.learners.belief import DT, SIGMA, BeliefTracker, ReactionBelief
 from pernav.learners.answers import fit_belief, labelled_drives
+from pernav.learners.belief import DT, SIGMA, BeliefTracker, ReactionBelief
 from pernav.trainer.collect import drive, history_env
 from pernav.world.drivers import Context, DriverProfile
 

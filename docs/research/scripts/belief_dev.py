@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from pernav.learners.answers import drive_outcomes, fit_belief, labelled_drives
 from pernav.learners.belief import ReactionBelief
 from pernav.study.config import BELIEF_DEFAULTS
-from pernav.learners.answers import drive_outcomes, fit_belief, labelled_drives
 
 ROUTE_SEED, N_TRAIN, N_TEST, DRIVE_SEEDS = 11, 96, 50, (12, 13, 14, 15, 16)
 
