@@ -22,7 +22,7 @@ _EXPORTS = {
     "RouteError": "pernav.world.routing",
     "astar": "pernav.world.routing",
     "plan_route": "pernav.world.routing",
-    "Town": "pernav.world.towns",
+    "Town": "pernav.world.network",
     "TownError": "pernav.world.towns",
     "get_town": "pernav.world.towns",
     "TOWN_NAMES": "pernav.world.constants",

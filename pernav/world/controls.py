@@ -7,8 +7,9 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from pernav.world.network import LaneIndex
 from pernav.world.scalars import clamp, wrap_angle
-from pernav.world.towns import LANE_WIDTH, LaneIndex
+from pernav.world.towns import LANE_WIDTH
 
 if TYPE_CHECKING:
     from pernav.world.driver_car import DriverCar

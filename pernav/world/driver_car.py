@@ -12,8 +12,9 @@ from pernav.world.constants import OPPOSITE, PREPARES, SIDED, TURNS, Instruction
 from pernav.world.controls import ExternalControls, PersonAtTheWheel
 from pernav.world.drivers import Driver
 from pernav.world.events import Heard
+from pernav.world.network import LaneIndex, turn_direction
 from pernav.world.scalars import clamp, wrap_angle
-from pernav.world.towns import SPEED_RING, LaneIndex, turn_direction
+from pernav.world.towns import SPEED_RING
 from pernav.world.vehicles import PathCar, braking_for, idm_acceleration
 
 if TYPE_CHECKING:

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 from highway_env.vehicle.kinematics import Vehicle
 
+from pernav.world.network import ANGLE, Town
 from pernav.world.scalars import wrap_angle
-from pernav.world.towns import ANGLE, RING_MERGE_ANGLE, RING_RADIUS, Town
+from pernav.world.towns import RING_MERGE_ANGLE, RING_RADIUS
 from pernav.world.vehicles import PathCar
 
 

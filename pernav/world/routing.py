@@ -20,7 +20,7 @@ import numpy as np
 from highway_env.road.road import RoadNetwork
 
 from pernav.world.constants import GOAL_LOOKAHEAD_S, WAYPOINT_SPACING
-from pernav.world.towns import LaneIndex, Town, turn_direction
+from pernav.world.network import LaneIndex, Town, turn_direction
 
 
 class RouteError(ValueError):

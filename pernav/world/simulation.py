@@ -33,9 +33,10 @@ from highway_env.vehicle.kinematics import Vehicle
 from pernav.world.driver_car import DriverCar
 from pernav.world.drivers import Driver
 from pernav.world.events import Events
+from pernav.world.network import LaneIndex, Town
 from pernav.world.right_of_way import RightOfWay
 from pernav.world.routing import Route
-from pernav.world.towns import LANE_WIDTH, LaneIndex, Town
+from pernav.world.towns import LANE_WIDTH
 from pernav.world.traffic import TrafficCar
 from pernav.world.vehicles import PathCar
 

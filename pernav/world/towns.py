@@ -5,7 +5,8 @@ into a highway-env :class:`~highway_env.road.road.RoadNetwork` plus the metadata
 routing and the policies need (junction kinds, movements, lane successors).
 
 Coordinates are highway-env's screen frame: x right, **y down**; a positive heading change is a right
-turn. Traffic drives on the right.
+turn. Traffic drives on the right. The built town (``Town``), its junctions and lane queries are in
+:mod:`pernav.world.network`; the routes in :mod:`pernav.world.routing`.
 
 Example:
     >>> town = get_town("Town3")
@@ -16,15 +17,15 @@ Example:
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from highway_env.road.lane import AbstractLane, CircularLane, LineType, StraightLane
 from highway_env.road.road import RoadNetwork
 
 from pernav.world.constants import TOWN_NAMES
-
-LaneIndex = tuple[str, str, int]
+from pernav.world.network import ANGLE, DIRS, OPP, Junction, LaneIndex, Town, right_normal, turn_direction
+from pernav.world.routing import make_routes
 
 LANE_WIDTH = 4.0
 SPEED_1LANE = 13.9  # 50 km/h town streets
@@ -34,54 +35,6 @@ SPEED_RING = 8.0
 RING_RADIUS = 20.0
 RING_SPOKE = 16.0  # distance from the ring to the arm's end nodes
 RING_MERGE_ANGLE = np.deg2rad(28.0)
-
-DIRS: dict[str, np.ndarray] = {
-    "E": np.array([1.0, 0.0]),
-    "S": np.array([0.0, 1.0]),
-    "W": np.array([-1.0, 0.0]),
-    "N": np.array([0.0, -1.0]),
-}
-OPP = {"E": "W", "W": "E", "N": "S", "S": "N"}
-ANGLE = {"E": 0.0, "S": np.pi / 2, "W": np.pi, "N": -np.pi / 2}
-
-
-def right_normal(v: np.ndarray) -> np.ndarray:
-    """Unit vector to the right of direction ``v`` in the y-down screen frame."""
-    return np.array([-v[1], v[0]])
-
-
-def turn_direction(in_arm: str, out_arm: str) -> str:
-    """'straight', 'left' or 'right' for a car entering from ``in_arm`` and leaving by ``out_arm``.
-
-    >>> turn_direction("W", "S")  # heading east, leaving south: a right turn (y down)
-    'right'
-    """
-    if out_arm == OPP[in_arm]:
-        return "straight"
-    travel = -DIRS[in_arm]
-    return "right" if np.allclose(DIRS[out_arm], right_normal(travel)) else "left"
-
-
-@dataclass
-class Junction:
-    """A node of the town map: a cross/T junction ('cross') or a roundabout ('roundabout')."""
-
-    id: str
-    kind: str
-    center: np.ndarray
-    arms: dict[str, int] = field(default_factory=dict)  # arm letter -> lanes per direction on that arm
-    size: float = 12.0  # box half-size (cross) or ring radius + spoke (roundabout)
-
-    @property
-    def is_decision(self) -> bool:
-        """True where a driver has a choice (3+ arms or a roundabout); 2-arm nodes are bends."""
-        return self.kind == "roundabout" or len(self.arms) >= 3
-
-    def in_node(self, arm: str) -> str:
-        return f"{self.id}:i{arm}"
-
-    def out_node(self, arm: str) -> str:
-        return f"{self.id}:o{arm}"
 
 
 @dataclass
@@ -139,94 +92,6 @@ if tuple(TOWN_SPECS) != TOWN_NAMES:  # the light list (pernav.world.constants) n
 
 class TownError(ValueError):
     """A bad town name or route index."""
-
-
-@dataclass
-class Town:
-    """A built town: the lane network, its junctions, lane successors and the fixed routes."""
-
-    name: str
-    network: RoadNetwork
-    junctions: dict[str, Junction]
-    successors: dict[LaneIndex, list[LaneIndex]]
-    lane_junction: dict[LaneIndex, str]  # connector/ring/spoke lanes -> junction id
-    road_lanes: list[LaneIndex]  # lanes of streets between junctions (spawn places)
-    description: str = ""
-    routes: list = field(default_factory=list)  # list[routing.Route], filled by get_town
-
-    @property
-    def has_roundabout(self) -> bool:
-        return any(j.kind == "roundabout" for j in self.junctions.values())
-
-    def lane(self, index: LaneIndex) -> AbstractLane:
-        return self.network.graph[index[0]][index[1]][index[2]]
-
-    def junction_of_node(self, node: str) -> Junction | None:
-        return self.junctions.get(node.split(":")[0]) if ":" in node else None
-
-    @functools.cached_property
-    def lane_grid(self) -> LaneGrid:
-        return LaneGrid(self)
-
-    def bounds(self, margin: float = 30.0) -> tuple[float, float, float, float]:
-        pts = np.array([j.center for j in self.junctions.values()])
-        return (
-            pts[:, 0].min() - margin,
-            pts[:, 0].max() + margin,
-            pts[:, 1].min() - margin,
-            pts[:, 1].max() + margin,
-        )
-
-
-class LaneGrid:
-    """Spatial hash of lanes: which lanes pass near a point. Makes closest-lane queries local
-    (highway-env searches every lane of the network, the bottleneck in a town)."""
-
-    CELL = 12.0
-
-    def __init__(self, town: Town) -> None:
-        self.town = town
-        cells: dict[tuple[int, int], set] = {}
-        for index in town.successors:
-            lane = town.lane(index)
-            for s in np.arange(0.0, lane.length + 1.0, 2.0):
-                p = lane.position(min(s, lane.length), 0.0)
-                cx, cy = int(np.floor(p[0] / self.CELL)), int(np.floor(p[1] / self.CELL))
-                for dx in (-1, 0, 1):
-                    for dy in (-1, 0, 1):
-                        cells.setdefault((cx + dx, cy + dy), set()).add(index)
-        self.cells = {k: sorted(v) for k, v in cells.items()}
-
-    def near(self, position: np.ndarray) -> list[LaneIndex]:
-        key = (int(np.floor(position[0] / self.CELL)), int(np.floor(position[1] / self.CELL)))
-        return self.cells.get(key, [])
-
-    def closest(self, position: np.ndarray, heading: float | None = None) -> tuple[LaneIndex | None, float]:
-        """Closest lane to ``position`` (preferring lanes aligned with ``heading``) and the absolute
-        lateral distance to its centre line (inf when no lane is near)."""
-        best, best_score, best_lat = None, np.inf, np.inf
-        for index in self.near(position):
-            lane = self.town.lane(index)
-            s, lat = lane.local_coordinates(position)
-            ds = max(0.0, -s, s - lane.length)
-            dist = np.hypot(lat, ds)
-            score = dist
-            if heading is not None:
-                dh = abs((lane.heading_at(np.clip(s, 0, lane.length)) - heading + np.pi) % (2 * np.pi) - np.pi)
-                score += 2.0 * dh
-            if score < best_score:
-                best, best_score, best_lat = index, score, dist
-        return best, best_lat
-
-    def distance_to_road(self, position: np.ndarray) -> float:
-        """Distance from ``position`` to the nearest lane centre line (inf off the map)."""
-        best = np.inf
-        for index in self.near(position):
-            lane = self.town.lane(index)
-            s, lat = lane.local_coordinates(position)
-            ds = max(0.0, -s, s - lane.length)
-            best = min(best, float(np.hypot(lat, ds)))
-        return best
 
 
 # --------------------------------------------------------------------------------------------------
@@ -457,8 +322,6 @@ def get_town(name: str) -> Town:
     """The named town with its ten fixed routes (cached: towns are immutable once built)."""
     if name not in TOWN_SPECS:
         raise TownError(f"unknown town {name!r}; choose one of {', '.join(TOWN_NAMES)}")
-    from pernav.world.routing import make_routes
-
     town = build_town(TOWN_SPECS[name])
     town.routes = make_routes(town)
     return town

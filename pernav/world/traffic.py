@@ -9,8 +9,8 @@ from highway_env.road.lane import CircularLane
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
+from pernav.world.network import LaneIndex
 from pernav.world.scalars import clamp
-from pernav.world.towns import LaneIndex
 from pernav.world.vehicles import PathCar, braking_for, idm_acceleration
 
 if TYPE_CHECKING:

@@ -6,8 +6,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from pernav.world.network import LaneIndex
 from pernav.world.scalars import clamp, wrap_angle
-from pernav.world.towns import LaneIndex
 
 if TYPE_CHECKING:
     from pernav.world.simulation import World
