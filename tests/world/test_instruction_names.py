@@ -8,7 +8,8 @@ import pytest
 
 from pernav.env import layout, policies
 from pernav.env.navigation import NavigationEnv
-from pernav.model import egocentric, timing
+from pernav.learners import timing
+from pernav.model import egocentric
 from pernav.play.audio import speech_file
 from pernav.trainer import collect
 from pernav.world.constants import (
