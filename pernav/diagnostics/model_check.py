@@ -34,6 +34,8 @@ import json
 import sys
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
 from tensordict import TensorDictBase
@@ -190,11 +192,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
 
 def scatter(pooled: dict[str, np.ndarray], path: str, town: str) -> None:
     """True vs predicted divergence after 10 steps, one panel per model, every driver's states pooled."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    matplotlib.use("Agg")  # headless
     names = [k for k in pooled if k != "true"]
     fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 4), sharex=True, sharey=True)
     top = max(float(v[:, -1].max()) for v in pooled.values()) * 1.05

@@ -23,6 +23,8 @@ import torch
 
 from pernav.diagnostics.true_model import TrueDynamicsEnv
 from pernav.env.torchrl_env import explore_module, navigation_of, oracle_module
+from pernav.model.dynamics import DynamicsModel
+from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.study.stats import gap_closed, paired_difference
 from pernav.trainer.collect import episode_metrics, history_env
@@ -72,9 +74,6 @@ def _policy(job: PanelJob, env: Any) -> Any:
     if backend == "true":
         return build_planner(TrueDynamicsEnv(navigation_of(env), samples=job.samples, seed=job.seed), options)
     if backend == "learned" and job.model is not None:
-        from pernav.model.dynamics import DynamicsModel
-        from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-
         model = DynamicsModel(**job.model["config"])
         model.load_state_dict(job.model["state"])
         planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), options, model.n_actions)

@@ -38,6 +38,9 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from itertools import cycle, product
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
+from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 from tqdm import tqdm
 
 from pernav.diagnostics.panel import PANEL, PanelJob, comparison_table, drive_panel_episode, episode_key
@@ -52,12 +55,7 @@ def scatter(episodes: list[dict], path: str) -> None:
     Points below the diagonal beat explore on that episode; pairing per episode lets methods that drove fewer
     routes (``paper@true``) share the figure without comparing different episodes.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
-
+    matplotlib.use("Agg")  # headless
     explore = {episode_key(e): e["tracking_cost"] for e in episodes if e["method"] == "explore"}
     methods = [m for m in dict.fromkeys(e["method"] for e in episodes) if m != "explore"]
     fig, axes = plt.subplots(1, len(TOWNS), figsize=(5 * len(TOWNS), 4.4), squeeze=False)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import imageio.v2 as imageio
 import numpy as np
 
 from pernav.env.navigation import NavigationEnv, load_user
@@ -53,8 +54,6 @@ def drive_routes(town: str, policy: str, user: Any, routes: list[int] | None = N
         frames: list | None = [] if gif and i == 0 else None
         episodes.append(run_episode(env, policy, r, seed + r, frames, options))
         if frames:
-            import imageio.v2 as imageio
-
             imageio.mimsave(gif, frames, duration=0.1, loop=0)
     env.close()
     summary = {

@@ -35,6 +35,7 @@ from pernav.env.policies import (
     explore_policy,
     oracle_policy,
 )
+from pernav.env.render import Renderer
 from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, TOWN_NAMES, Instruction, audio_duration
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
@@ -481,8 +482,6 @@ class NavigationEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        from pernav.env.render import Renderer
-
         if self._viewer is None:
             self._viewer = Renderer()
         return self._viewer.frame(self)

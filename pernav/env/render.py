@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
+os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")  # before pygame loads: its greeting would reach stdout
 
-os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+import numpy as np
+import pygame
+from highway_env.road.graphics import RoadGraphics, WorldSurface
+from highway_env.vehicle.graphics import VehicleGraphics
+
+from pernav.world.constants import ACTION_NAMES
 
 
 class Renderer:
     """Draws the town around the driver's car, the route ahead and the last instruction."""
 
     def __init__(self, size: tuple[int, int] = (600, 600), scaling: float = 3.0) -> None:
-        import pygame
-        from highway_env.road.graphics import WorldSurface
-
         pygame.font.init()  # fonts only: pygame.init() would open audio devices
         self.pygame = pygame
         self.size = size
@@ -25,11 +27,6 @@ class Renderer:
         self.font = pygame.font.Font(None, 26)
 
     def frame(self, env) -> np.ndarray:
-        from highway_env.road.graphics import RoadGraphics
-        from highway_env.vehicle.graphics import VehicleGraphics
-
-        from pernav.world.constants import ACTION_NAMES
-
         pg, surf, world = self.pygame, self.surface, env.world
         surf.move_display_window_to(world.ego.position)
         RoadGraphics.display(world.road, surf)

@@ -14,6 +14,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 __all__ = ["DataFileError", "is_file", "key_values", "read_data_file"]
 
 
@@ -35,8 +37,6 @@ def read_data_file(path: str | Path) -> Any:
     try:
         text = path.read_text()
         if path.suffix.lower() in (".yaml", ".yml"):
-            import yaml
-
             return yaml.safe_load(text)
         return json.loads(text)
     except Exception as exc:  # noqa: BLE001 - any read/parse error is the user's file, reported in one line

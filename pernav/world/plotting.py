@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from pernav.world.towns import get_town
@@ -22,11 +24,7 @@ def plot_town(name: str, path: str | Path, routes: bool = True) -> Path:
     >>> out.exists()
     True
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    matplotlib.use("Agg")  # headless
     town = get_town(name)
     fig, ax = plt.subplots(figsize=(9, 7))
     for index in town.successors:
