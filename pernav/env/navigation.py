@@ -36,7 +36,7 @@ from pernav.env.policies import (
     oracle_policy,
 )
 from pernav.env.render import Renderer
-from pernav.world.constants import N_INSTRUCTIONS, PLAYBACK, TOWN_NAMES, Instruction, audio_duration
+from pernav.world.constants import N_PLAYBACKS, PLAYBACK, TOWN_NAMES, Instruction, audio_duration, n_actions
 from pernav.world.cost import tracking_cost
 from pernav.world.drivers import (
     CONTEXT_CHOICES,
@@ -154,7 +154,7 @@ class NavigationEnv(gym.Env):
         self.config = {**DEFAULT_CONFIG, **(config or {})}
         self.town = get_town(town)
         self.render_mode = render_mode
-        self.n_actions = N_INSTRUCTIONS * (3 if self.config["adaptive_speed"] else 1)
+        self.n_actions = n_actions(self.config["adaptive_speed"])
         self.action_space = gym.spaces.Discrete(self.n_actions)
         high = np.full(STATE_DIM, 1e4, dtype=np.float32)
         self.observation_space = gym.spaces.Box(-high, high, dtype=np.float32)
@@ -175,11 +175,11 @@ class NavigationEnv(gym.Env):
         if not 0 <= int(action) < self.n_actions:
             raise ValueError(f"action {action} out of range [0, {self.n_actions - 1}]")
         if self.config["adaptive_speed"]:
-            return int(action) // 3, PLAYBACK[int(action) % 3]
+            return int(action) // N_PLAYBACKS, PLAYBACK[int(action) % N_PLAYBACKS]
         return int(action), "normal"
 
     def encode(self, instruction: int, playback: str = "normal") -> int:
-        return instruction * 3 + PLAYBACK.index(playback) if self.config["adaptive_speed"] else instruction
+        return instruction * N_PLAYBACKS + PLAYBACK.index(playback) if self.config["adaptive_speed"] else instruction
 
     def nav_view(self) -> NavView:
         log = [(i, s) for i, s, r in self._played if r == self.reroutes]
@@ -470,7 +470,7 @@ class NavigationEnv(gym.Env):
         # one imagined explore future serves both the paper planner's shifted plan and the re-timing planner
         full = explore_plan(self._explore, view, self._explore_past, max(H, F - S), S)
         plan, future = full[: H + 2 * S], full[S: S + F]
-        playbacks = 3 if self.config["adaptive_speed"] else 1
+        playbacks = N_PLAYBACKS if self.config["adaptive_speed"] else 1
         return {
             "plan_goals": plan_goals(self.route, self.progress, speed, H),
             "explore_plan": plan,

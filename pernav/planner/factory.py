@@ -15,6 +15,7 @@ from typing import Any
 
 from pernav.planner.retiming import RetimingPlanner
 from pernav.planner.tree_search import TreeSearchPlanner
+from pernav.world.constants import N_ADAPTIVE_ACTIONS
 from pernav.world.files import key_values
 
 __all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_config", "parse_planner_options"]
@@ -47,7 +48,7 @@ def build_planner(env: Any, options: Mapping[str, Any], n_actions: int | None = 
     opts = {**PLANNER_DEFAULTS[kind], **options}
     if kind == "paper":
         beam = opts.pop("beam_speed")
-        return TreeSearchPlanner(env, beam=beam if n_actions == 21 else None, **opts)
+        return TreeSearchPlanner(env, beam=beam if n_actions == N_ADAPTIVE_ACTIONS else None, **opts)
     return RetimingPlanner(env, **opts)
 
 

@@ -56,7 +56,7 @@ from torchrl.modules.planners import MPCPlannerBase
 from pernav.env.layout import ROUTE_SPACING, STATE_DIM
 from pernav.model.egocentric import GX, GY
 from pernav.planner.discrete import planning_roots
-from pernav.world.constants import Instruction
+from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, Instruction
 from pernav.world.cost import tracking_cost
 
 __all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
@@ -144,7 +144,7 @@ class RetimingPlanner(MPCPlannerBase):
             raise ValueError(f"rel_spread must be >= 0, got {rel_spread}")
         self.rel_spread = float(rel_spread)
         n_actions = int(env.action_spec.space.n)
-        self.playbacks = playbacks or (3 if n_actions == 21 else 1)
+        self.playbacks = playbacks or (N_PLAYBACKS if n_actions == N_ADAPTIVE_ACTIONS else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
         self.in_keys = ["history", "explore_future", "route_ahead", "action_mask"]
         self.last: list[RetimingResult] = []
@@ -155,7 +155,8 @@ class RetimingPlanner(MPCPlannerBase):
         """Instruction sequences in the action space (with 21 actions: each at the three speeds)."""
         if self.playbacks == 1:
             return seqs, 1
-        return torch.cat([seqs * 3 + p for p in (1, 0, 2)]), 3  # normal first: explore's is row 0 of its block
+        # normal first: explore's is row 0 of its block
+        return torch.cat([seqs * N_PLAYBACKS + p for p in (1, 0, 2)]), N_PLAYBACKS
 
     def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``[M, N]`` cost of each sequence for each row of the env's imagination, and the imagined positions
@@ -279,7 +280,7 @@ class RetimedExplore(TensorDictModuleBase):
 
     def _act(self, root: TensorDictBase) -> int:
         n_actions = int(root["action_mask"].shape[-1])
-        playbacks = 3 if n_actions == 21 else 1
+        playbacks = N_PLAYBACKS if n_actions == N_ADAPTIVE_ACTIONS else 1
         future = root["explore_future"].long()
         if self._plan:
             instruction = self._plan.pop(0)
@@ -296,7 +297,7 @@ class RetimedExplore(TensorDictModuleBase):
                 instruction = self._plan.pop(0)
             else:
                 instruction = int(future[0])
-        return instruction * playbacks + (1 if playbacks == 3 else 0)  # 21 actions: normal playback
+        return instruction * playbacks + (1 if playbacks == N_PLAYBACKS else 0)  # 21 actions: normal playback
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         flat = td.reshape(-1)

@@ -41,7 +41,7 @@ from tensordict import TensorDictBase
 from pernav.model.egocentric import GX, GY, X, Y
 from pernav.model.losses import using
 from pernav.planner.discrete import DiscreteTreeSearchPlanner, SearchResult, planning_roots
-from pernav.world.constants import TURN_INSTRUCTIONS
+from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, TURN_INSTRUCTIONS
 from pernav.world.cost import tracking_cost
 
 __all__ = ["TreeSearchPlanner"]
@@ -81,7 +81,7 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
         self.goal_source = goal_source
         self.shift_decay = float(shift_decay)
         self.model = getattr(env, "dynamics", None)  # None: an env that only imagines (the true simulator)
-        self.playbacks = playbacks or (3 if self.n_actions == 21 else 1)
+        self.playbacks = playbacks or (N_PLAYBACKS if self.n_actions == N_ADAPTIVE_ACTIONS else 1)
         self.horizon, self.shift = int(horizon), int(shift)
         self.bonus, self.penalty, self.mask, self.beam = float(bonus), float(penalty), bool(mask), beam
         # adapted parameters to plan with (None: the model's own); of an ensemble's list, the paper's planner
@@ -128,7 +128,7 @@ class TreeSearchPlanner(DiscreteTreeSearchPlanner):
     def _explore(self, roots: TensorDictBase, H: int) -> torch.Tensor:
         """``[B, H]``: the explore plan in the action space (the fallback when no sequence has a finite return)."""
         plan = roots["explore_plan"].long()[:, self.shift: self.shift + H]
-        return plan * self.playbacks + (1 if self.playbacks == 3 else 0)
+        return plan * self.playbacks + (1 if self.playbacks == N_PLAYBACKS else 0)
 
     # ----- the search ---------------------------------------------------------------------------------------
     @torch.no_grad()
