@@ -11,7 +11,7 @@ from tensordict import TensorDictBase
 from torchrl.data import Categorical, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import ParallelEnv, SerialEnv, TransformedEnv, check_env_specs
 
-from pernav.env.torchrl_env import INFO_DTYPES, explore_module, make_torchrl_env, oracle_module
+from pernav.env.torchrl_env import INFO_DTYPES, explore_module, make_torchrl_env, navigation_of, oracle_module
 from pernav.trainer.collect import history_env
 from pernav.transforms import HistoryWindow
 
@@ -64,7 +64,7 @@ def test_history_window_rejects_wrong_n_actions() -> None:
 def test_reset_options_used_at_every_reset() -> None:
     options = {"route": 4, "user": "user3", "context": {"vehicle": "cybertruck"}}
     env = make_torchrl_env(config=FAST, options=options, seed=0)
-    base = env._env
+    base = navigation_of(env)
     for _ in range(2):
         env.reset()
         assert base.route_index == 4 and base.context.vehicle == "cybertruck"
