@@ -38,7 +38,7 @@ test-fast: $(STAMP)
 # docs/paper.md's generated section, docs/paper/fig3.png and regret.png from docs/paper/results/*.json (seconds)
 .PHONY: paper
 paper: $(STAMP)
-	$(BIN)/python -m pernav.study.paper --build
+	$(BIN)/python -m recipes.benchmarks.paper --build
 
 lint: $(STAMP)
 	$(BIN)/ruff check pernav recipes tests docs/research/scripts

@@ -1,5 +1,11 @@
 import os
+import sys
+from pathlib import Path
 
+# the repository's root: the tests of recipes/ import them as ``recipes.benchmarks.*``, whatever the current folder;
+# and the shared smoke study's helpers (tests/study/study_helpers.py), which the recipes' tests use too
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent / "study"))
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
@@ -7,7 +13,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # --maxschedchunk 2 hands a worker the next two tests whenever it is down to its last one, so each pair runs on one
 # worker, one test after the other). A pair shares what its tests build: the recorded-drives study and its resume,
 # the study on a pool of two and its comparison, the sweeps of tests/world/test_acceptance.py, the development
-# drivers of tests/model/test_belief.py (module fixtures, built again on every worker that runs one of their tests).
+# drivers of tests/learners/test_belief.py (module fixtures, built again on every worker that runs one of their tests).
 # The shared smoke study (tests/study/study_helpers.py) is built first; the checks that compare against it (the pool
 # of two, Ray, SIGKILL, then the rest) reach a worker only once one of its long checks has run, so no worker waits
 # on the other's study. Ids without parameters name every case of a parametrized test.
@@ -25,12 +31,12 @@ PAIRS = (
      "tests/world/test_acceptance.py::test_explore_completes_routes_with_the_average_driver"),
     ("tests/world/test_acceptance.py::test_best_lead_time_is_personal",
      "tests/world/test_acceptance.py::test_too_late_misses_and_too_early_goes_wrong"),
-    ("tests/model/test_belief.py::test_a_late_answering_driver_gets_a_later_belief_and_earlier_prompts_a_quick_one_"
+    ("tests/learners/test_belief.py::test_a_late_answering_driver_gets_a_later_belief_and_earlier_prompts_a_quick_one_"
      "explore",
-     "tests/model/test_belief.py::test_the_posterior_narrows_with_drives_of_the_same_driver"),
-    ("tests/model/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
+     "tests/learners/test_belief.py::test_the_posterior_narrows_with_drives_of_the_same_driver"),
+    ("tests/learners/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
      "follow",
-     "tests/model/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
+     "tests/learners/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
     ("tests/world/test_acceptance.py::test_too_late_swerves_strike_for_truck_and_fast_keyboard",
      "tests/study/test_reliability.py::test_nan_loss_is_skipped_and_the_study_finishes"),
 )

@@ -188,7 +188,9 @@ def test_the_layer_reader_finds_lazy_and_string_imports(tmp_path: Path) -> None:
     (tmp_path / "pernav" / "play" / "p.py").write_text("from pernav.diagnostics import stats\nimport pernav.cli\n")
     assert upward_imports(tmp_path)[3:] == ["pernav/play/p.py:1: play -> pernav.diagnostics",
                                             "pernav/play/p.py:2: play -> pernav.cli"]
-    (tmp_path / "pernav" / "cli.py").write_text("from pernav.bench import main\nfrom pernav.study import run_study\n")
+    (tmp_path / "pernav" / "cli").mkdir()
+    (tmp_path / "pernav" / "cli" / "m.py").write_text("from pernav.cli.bench import run\n"
+                                                       "from pernav.study import run_study\n")
     assert len(upward_imports(tmp_path)) == 5  # the entry points import one another and every layer
 
 

@@ -10,7 +10,7 @@ the car, or the prompt was misheard or ignored: then there is no answer to read.
 - :class:`AnswerDetector`, a small network that scores each frame of a prompt's answer window (its audio's end to
   :data:`ANSWER_SPAN` seconds later, or the next prompt) as the moment the prompt took effect, against "no visible
   answer". It is trained offline on simulated drivers of the population prior, whose moments are known (the paper's
-  offline MDPs: :func:`pernav.learners.answers.offline_answers`); at round time it sees the frames only.
+  offline MDPs: :func:`pernav.learners.answers.labelled_drives`); at round time it sees the frames only.
 - :class:`ReactionBelief`, an explicit likelihood on a grid of ``log R``: each answer contributes the lognormal
   density of its candidate delays weighted by the detector, mixed with a flat density for a prompt misread or
   unanswered. Its prior is the population's (fitted on the same offline drivers); the posterior narrows as answers

@@ -15,8 +15,7 @@ from typing import Any
 
 import yaml
 
-from pernav.study.follow import repeat_schedule
-from pernav.study.headroom import personal_schedule, split_schedule, sweep_schedule
+from pernav.study.benchmarks import SCHEDULES as BENCHMARK_SCHEDULES
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
 from pernav.world.constants import TOWN_NAMES
@@ -164,8 +163,7 @@ PRESETS_DIR = Path(__file__).parent / "presets"
 #: the named presets: ``pernav/study/presets/NAME.yaml``
 PRESETS = tuple(sorted(p.stem for p in PRESETS_DIR.glob("*.yaml")))
 #: the schedules a preset may name; ``{"paper": [labels]}`` picks the paper's entries by label
-SCHEDULES = {"paper": paper_schedule, "personal": personal_schedule, "sweep": sweep_schedule, "split": split_schedule,
-             "repeat": repeat_schedule}
+SCHEDULES = {"paper": paper_schedule, **BENCHMARK_SCHEDULES}
 
 
 def _schedule(spec: Any, name: str) -> list[Entry]:

@@ -1,5 +1,7 @@
-"""Does the navigation follow its driver? Three looks the split benchmark does not give
-(docs/personal.md, "Following the driver"), each fixed here before any learner ran on its seeds:
+"""Does the navigation follow its driver? Three looks the split benchmark does not give (docs/personal.md), each
+fixed before any learner ran on its seeds, and the later looks at the changed learner (``preregistered/follow.yaml``,
+``later_looks.yaml``). Judging takes seconds; the studies take about 3.5 min per seed (the sweep), 7-9 min (the
+repeated drives) and 5.5 min (the headroom benchmark) on 2 cores.
 
 * **the sweep's leads**: in the ``personal_sweep`` preset (the average driver, reaction time shifted), a learner's
   mean "turn" lead must rise with the driver's reaction time in each town and seed (Spearman over the sweep's
@@ -10,112 +12,60 @@
   ``timing`` (the population baseline).
 
 Example:
-    >>> [e.label for e in repeat_schedule()[3:6]]
-    ['slow 0 drive 1', 'quick 0 drive 1', 'slow 1 drive 1']
+    >>> spearman([1, 2, 3, 4], [10, 20, 15, 40])
+    0.8
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import matplotlib
 import numpy as np
 
-from pernav.study.headroom import (
+from pernav.study.benchmarks import (
     LATE_EXCESS,
+    REPEAT_DRIVERS,
+    REPEAT_DRIVES,
+    REPEAT_POPULATION_SEED,
     SWEEP_SHIFTS,
-    TARGETS,
     classify,
     episodes,
-    judge,
-    offline_rounds,
     personal_schedule,
-    split_drivers,
+    repeat_schedule,
     sweep_schedule,
 )
+from pernav.study.config import BELIEF_DEFAULTS
 from pernav.study.schedule import Entry
+from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference, paired_ratio
 from pernav.world.drivers import resolve
+from recipes.benchmarks.headroom import SPLIT_TARGETS, TARGETS, judge
+from recipes.benchmarks.registered import registration
 
-__all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_DRIVES", "REPEAT_SEEDS", "REPEAT_TARGETS",
-           "SWEEP_SEEDS", "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
-           "plot_sweep_leads", "preregistration", "repeat_schedule", "repeat_second_look", "second_look", "spearman",
-           "third_look", "third_version_looks"]
+__all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_SEEDS", "REPEAT_TARGETS", "SWEEP_SEEDS",
+           "SWEEP_TARGETS", "judge_headroom_fresh", "judge_repeat", "judge_sweep", "plot_personalization",
+           "plot_sweep_leads", "preregistration", "repeat_second_look", "second_look", "spearman", "third_look",
+           "third_version_looks"]
 
+_FOLLOW, _LATER = registration("follow"), registration("later_looks")
 #: the sweep's study seeds for this look (fresh: never run before this pre-registration)
-SWEEP_SEEDS = (200, 201, 202, 203)
-SWEEP_TARGETS: dict[str, Any] = {
-    "spearman": {"point": 0.8, "what": "in each town and seed, the Spearman correlation of the learner's mean 'turn' "
-                                       "lead (over the cell's routes) with the driver's reaction time, over the "
-                                       "sweep's five points"},
-    "quick_end_cost_ratio": {"point": 1.03, "what": "quickest point (reaction -0.4 s): learner's tracking cost over "
-                                                    "explore's, pooled over towns and seeds, paired"},
-    "slow_end_gap_closed": {"point": 0.60, "what": "slowest point (reaction +1.2 s): share of explore's cost above the "
-                                                   "oracle's that the learner removes, pooled, paired"},
-}
-
-#: the repeated-drives drivers: fresh draws (used nowhere else), two of each half, five drives each
-REPEAT_POPULATION_SEED = 5151
-REPEAT_DRIVERS = 2
-REPEAT_DRIVES = 5
-REPEAT_SEEDS = (400, 401, 402, 403)
-REPEAT_TARGETS: dict[str, Any] = {
-    "slow_gap_closed_after_3": {"point": 0.80, "what": "slow drivers' third drive: share of explore's cost above the "
-                                                       "oracle's that the learner removes, pooled over towns, "
-                                                       "drivers and seeds, paired"},
-    "curve": {"what": "reported either way: slow gap closed, quick cost ratio over explore, the quick half's 'turn' "
-                      "lead minus explore's and the belief's 90 % interval width after 1, 2, 3, 4 and 5 drives"},
-}
-
+SWEEP_SEEDS = tuple(_FOLLOW["sweep"]["seeds"])
+SWEEP_TARGETS: dict[str, Any] = _FOLLOW["sweep"]["targets"]
+REPEAT_SEEDS = tuple(_FOLLOW["repeat"]["seeds"])
+REPEAT_TARGETS: dict[str, Any] = _FOLLOW["repeat"]["targets"]
 #: the headroom benchmark's fresh seeds for the belief learner (never run before this pre-registration)
-HEADROOM_FRESH_SEEDS = (300, 301, 302, 303, 304, 305)
-HEADROOM_FRESH_TARGETS: dict[str, Any] = {
-    "late_minus_timing": {"point": 0.05, "what": "late cells: (learner's cost - timing's) / (explore's - the "
-                                                 "oracle's), pooled, paired: at most 5 % of the gap worse than timing"},
-    "on_time_cost_ratio": {"point": 1.02, "what": "on-time cells: learner's tracking cost over explore's"},
-    "collisions": {"what": "learner's collisions minus explore's over all cells: the 95 % CI includes or lies below "
-                           "zero"},
-    "standing": {"what": "the benchmark's own targets (pernav.study.headroom.TARGETS), reported either way",
-                 "targets": TARGETS},
-}
-
-
-#: the second look (one each, fixed before it ran): the learner changed after the first looks, so the two looks
-#: that judge "follows the driver" and "serves both halves" run again on fresh seeds with it. What changed: a posterior
-#: over the decision time too (``decision``) and a driver's own reading error (``drift``), both chosen on development
-#: drivers only (docs/research/scripts/belief_dev.py, seeds 9105-9108)
-SECOND_LOOK_CHANGES: dict[str, Any] = {"decision": 1, "drift": 0.1}
-SECOND_LOOK_SWEEP_SEEDS = (210, 211, 212, 213)
-SECOND_LOOK_SPLIT_SEEDS = tuple(range(116, 132))
-
-#: the third look at the split benchmark (one, fixed before it ran), after its second missed one target (the quick
-#: half's "turn" prompts +0.35 s earlier than explore's, against at most 0.3): the prompts keep explore's reaction time
-#: unless the posterior says the driver is more likely slower than the average driver than not (``slower``), chosen
-#: on development drivers only (Population seeds 9105/9106: the quick drivers' lead after one drive +0.46/+0.34 s in
-#: Town1/Town3 -> +0.37/+0.18 s, the slow drivers' unchanged; docs/personal.md)
-THIRD_LOOK_CHANGES: dict[str, Any] = {"slower": 0.5}
-THIRD_LOOK_SPLIT_SEEDS = tuple(range(132, 148))
-#: the repeated drives' second look (one, fixed before it ran): the personalization curve had run with the first
-#: version only; the learner as it is now (the decision time, the drift, ``slower``) drives the same drivers again
-REPEAT_SECOND_LOOK_SEEDS = (404, 405, 406, 407)
-#: the third version's looks at the sweep (its third look) and at the headroom benchmark on fresh seeds (its second),
-#: one each, fixed before they ran: both had been judged with earlier versions only (the sweep with the second, the
-#: headroom benchmark with the first), and ``slower`` can move the sweep's quick points
-THIRD_VERSION_SWEEP_SEEDS = (220, 221, 222, 223)
-THIRD_VERSION_HEADROOM_SEEDS = (310, 311, 312, 313, 314, 315)
-
-
-def repeat_schedule() -> list[Entry]:
-    """The ``repeat`` preset's schedule: the offline rounds, then :data:`REPEAT_DRIVES` rounds of each of
-    :data:`REPEAT_DRIVERS` slow and as many quick drivers (``Population(seed=REPEAT_POPULATION_SEED)``), the drivers
-    alternating within each pass. A driver's rounds share its profile and context, so the belief learner's
-    posterior after one round is its prior in the next (the study's user key)."""
-    entries = offline_rounds()
-    kinds = split_drivers(REPEAT_POPULATION_SEED, REPEAT_DRIVERS)
-    for k in range(1, REPEAT_DRIVES + 1):
-        for i in range(REPEAT_DRIVERS):
-            for kind in ("slow", "quick"):
-                profile, context = kinds[kind][i]
-                entries.append(Entry(f"{kind} {i} drive {k}", "online", profile.to_dict(), **context.to_dict()))
-    return entries
+HEADROOM_FRESH_SEEDS = tuple(_FOLLOW["headroom"]["seeds"])
+HEADROOM_FRESH_TARGETS: dict[str, Any] = {**_FOLLOW["headroom"]["targets"],
+                                          "standing": {**_FOLLOW["headroom"]["standing"], "targets": TARGETS}}
+#: the later looks (one each, fixed before it ran; ``later_looks.yaml`` says why each ran)
+SECOND_LOOK_CHANGES: dict[str, Any] = _LATER["second"]["changes"]
+SECOND_LOOK_SWEEP_SEEDS = tuple(_LATER["second"]["sweep_seeds"])
+SECOND_LOOK_SPLIT_SEEDS = tuple(_LATER["second"]["split_seeds"])
+THIRD_LOOK_CHANGES: dict[str, Any] = _LATER["third"]["changes"]
+THIRD_LOOK_SPLIT_SEEDS = tuple(_LATER["third"]["split_seeds"])
+REPEAT_SECOND_LOOK_SEEDS = tuple(_LATER["repeat_second"]["seeds"])
+THIRD_VERSION_SWEEP_SEEDS = tuple(_LATER["third_version"]["sweep_seeds"])
+THIRD_VERSION_HEADROOM_SEEDS = tuple(_LATER["third_version"]["headroom_seeds"])
 
 
 def preregistration() -> dict[str, Any]:
@@ -134,8 +84,6 @@ def preregistration() -> dict[str, Any]:
 def _look(options: dict[str, Any] | None = None, **parts: Any) -> dict[str, Any]:
     """A later look's registration (JSON-ready): the belief learner with ``options`` (default: as committed), read
     once, and ``parts`` (the look's number, why it ran, each benchmark's preset, seeds and targets)."""
-    from pernav.study.config import BELIEF_DEFAULTS
-
     return {"learner": "belief", "options": dict(BELIEF_DEFAULTS if options is None else options), "one_look": True,
             **parts}
 
@@ -143,9 +91,6 @@ def _look(options: dict[str, Any] | None = None, **parts: Any) -> dict[str, Any]
 def second_look() -> dict[str, Any]:
     """The second look at the changed learner, as fixed before it ran (JSON-ready): the sweep and the split benchmark
     on fresh seeds, the same targets as their first looks, with the learner's options as committed."""
-    from pernav.study.config import BELIEF_DEFAULTS
-    from pernav.study.headroom import SPLIT_TARGETS
-
     options = {k: v for k, v in BELIEF_DEFAULTS.items() if k not in THIRD_LOOK_CHANGES}  # as they were then
     return _look(options, changed=SECOND_LOOK_CHANGES, look=2,
                  sweep={"preset": "personal_sweep", "seeds": list(SECOND_LOOK_SWEEP_SEEDS), "targets": SWEEP_TARGETS},
@@ -155,8 +100,6 @@ def second_look() -> dict[str, Any]:
 def third_look() -> dict[str, Any]:
     """The split benchmark's third look, as fixed before it ran (JSON-ready): fresh seeds, the same targets as its
     first two looks, the learner's options as committed. A look repeated because the one before missed a target."""
-    from pernav.study.headroom import SPLIT_TARGETS
-
     return _look(changed=THIRD_LOOK_CHANGES, look=3,
                  why="the second look missed the quick half's 'turn' lead (+0.35 s against at most 0.3)",
                  split={"preset": "split", "seeds": list(THIRD_LOOK_SPLIT_SEEDS), "targets": SPLIT_TARGETS})
@@ -225,8 +168,6 @@ def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
                 methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
     """The sweep look's figures (:data:`SWEEP_TARGETS`): every method's Spearman of mean "turn" lead with reaction
     time per town and seed, and the learner's cost at the quick end and gap closed at the slow end."""
-    from pernav.study.stats import gap_closed, paired_ratio
-
     pairs = episodes(results)
     online = [e for e in sweep_schedule() if e.phase == "online"]
     reaction = {e.label: _reaction(e) for e in online}
@@ -267,8 +208,6 @@ def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
 def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict[str, Any]:
     """The personalization curve (:data:`REPEAT_TARGETS`): per drive *k* of the same driver, the slow drivers' gap
     closed, the quick drivers' cost over explore's and "turn" lead minus explore's, and the belief's interval."""
-    from pernav.study.stats import gap_closed, paired_difference, paired_ratio
-
     pairs = episodes(results)
     cells = classify(repeat_schedule(), ["Town1", "Town3"])
     late = {c["round"]: c["late"] for c in cells}  # a driver's class is its own, the same in both towns
@@ -304,7 +243,7 @@ def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict
 
 def judge_headroom_fresh(results: list[dict[str, Any]], learner: str = "belief",
                          baseline: str = "timing") -> dict[str, Any]:
-    """The headroom look on fresh seeds (:data:`HEADROOM_FRESH_TARGETS`): :func:`~pernav.study.headroom.judge` of
+    """The headroom look on fresh seeds (:data:`HEADROOM_FRESH_TARGETS`): :func:`recipes.benchmarks.headroom.judge` of
     the learner and of ``baseline`` on the same episodes, and the learner's late-cell cost above the baseline's as a
     share of the explore-to-oracle gap, with a paired bootstrap CI."""
     cells = classify(personal_schedule(), ["Town1", "Town3"])
@@ -330,10 +269,8 @@ def judge_headroom_fresh(results: list[dict[str, Any]], learner: str = "belief",
 
 
 def _axes(n: int, width: float = 5.5):
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: after the headless backend is chosen
 
     fig, axes = plt.subplots(1, n, figsize=(width * n, 4), squeeze=False)
     return plt, fig, axes[0]
@@ -343,8 +280,6 @@ def plot_sweep_leads(results: list[dict[str, Any]], path: str,
                      methods: tuple[str, ...] = ("explore", "timing", "belief", "oracle")) -> dict[str, Any]:
     """The sweep's "turn" lead per method against the driver's reaction time (mean over routes and seeds with its
     95 % bootstrap CI), one panel per town; returns the plotted points."""
-    from pernav.study.stats import bootstrap_ci
-
     pairs = episodes(results)
     towns = sorted({k[1] for k in pairs})
     online = [e for e in sweep_schedule() if e.phase == "online"]

@@ -1,5 +1,5 @@
 """Three follow-up looks at the belief learner, each run once on the seeds pre-registered in
-docs/figures/follow/preregistration.json (pernav.study.follow): the sweep's "turn" leads, the personalization
+docs/figures/follow/preregistration.json (recipes/benchmarks/follow.py): the sweep's "turn" leads, the personalization
 curve over repeated drives, the headroom benchmark on fresh seeds.
 
     for s in 200 201 202 203; do pernav study --preset personal_sweep --methods explore timing belief oracle \
@@ -7,9 +7,9 @@ curve over repeated drives, the headroom benchmark on fresh seeds.
     for s in 400 401 402 403; do pernav study --preset repeat --seed $s --out runs/follow/repeat/seed$s --workers 2; done
     for s in 300 301 302 303 304 305; do pernav study --preset personal --methods explore timing belief oracle \
         --seed $s --out runs/follow/headroom/seed$s --workers 2; done
-    .venv/bin/python docs/research/scripts/follow_judge.py sweep runs/follow/sweep/seed*
-    .venv/bin/python docs/research/scripts/follow_judge.py repeat runs/follow/repeat/seed*
-    .venv/bin/python docs/research/scripts/follow_judge.py headroom runs/follow/headroom/seed*
+    .venv/bin/python -m recipes.benchmarks.follow_judge sweep runs/follow/sweep/seed*
+    .venv/bin/python -m recipes.benchmarks.follow_judge repeat runs/follow/repeat/seed*
+    .venv/bin/python -m recipes.benchmarks.follow_judge headroom runs/follow/headroom/seed*
 
 Each writes docs/figures/follow/<look>.json (and the sweep's and the curve's .png) and prints the figures; ``--out DIR``
 writes them to DIR instead (the second look: docs/figures/follow/second).
@@ -19,7 +19,7 @@ import json
 import sys
 from pathlib import Path
 
-from pernav.study import follow
+from recipes.benchmarks import follow
 
 OUT = Path("docs/figures/follow")
 

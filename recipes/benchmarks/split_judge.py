@@ -2,7 +2,7 @@
 learner on the 16 studies of seeds 100-115.
 
     for s in $(seq 100 115); do pernav study --preset split --seed $s --out runs/split/seed$s --workers 2; done
-    .venv/bin/python docs/research/scripts/split_judge.py runs/split/seed*     # -> docs/figures/split/judged.json
+    .venv/bin/python -m recipes.benchmarks.split_judge runs/split/seed*     # -> docs/figures/split/judged.json
     (--out FILE writes it elsewhere: the second look writes beside the first)
 """
 
@@ -10,7 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from pernav.study.headroom import judge_split
+from recipes.benchmarks.headroom import judge_split
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""The looks of pernav.study.follow: the pre-registration is reproduced, and each judge reads known figures back
+"""The looks of recipes/benchmarks/follow.py: the pre-registration is reproduced, and each judge reads known figures back
 from synthetic study results (no simulation)."""
 
 from __future__ import annotations
@@ -10,8 +10,16 @@ from pathlib import Path
 
 import pytest
 
-from pernav.study import follow
-from pernav.study.headroom import classify, personal_schedule
+from pernav.study.benchmarks import (
+    REPEAT_DRIVERS,
+    REPEAT_DRIVES,
+    classify,
+    personal_schedule,
+    repeat_schedule,
+    sweep_schedule,
+)
+from recipes.benchmarks import follow
+from recipes.benchmarks.headroom import SEEDS, SPLIT_SEEDS
 
 REGISTERED = Path(__file__).parents[2] / "docs" / "figures" / "follow" / "preregistration.json"
 
@@ -43,8 +51,6 @@ def test_the_pre_registration_is_reproduced():
     assert registered == json.loads(json.dumps(follow.preregistration()))
     assert registered["repeat"]["seeds"] == list(follow.REPEAT_SEEDS) and registered["one_look"]
     # fresh seeds: none of the three looks shares a seed with another, nor with the split benchmark's
-    from pernav.study.headroom import SEEDS, SPLIT_SEEDS
-
     looks = [follow.SWEEP_SEEDS, follow.REPEAT_SEEDS, follow.HEADROOM_FRESH_SEEDS, SPLIT_SEEDS, SEEDS,
              follow.SECOND_LOOK_SWEEP_SEEDS, follow.SECOND_LOOK_SPLIT_SEEDS, follow.THIRD_LOOK_SPLIT_SEEDS,
              follow.REPEAT_SECOND_LOOK_SEEDS, follow.THIRD_VERSION_SWEEP_SEEDS, follow.THIRD_VERSION_HEADROOM_SEEDS]
@@ -91,9 +97,9 @@ def test_the_repeated_drives_second_look_is_reproduced_with_the_first_looks_driv
 
 
 def test_the_repeat_schedule_drives_each_driver_five_times_in_its_class():
-    online = [e for e in follow.repeat_schedule() if e.phase == "online"]
-    assert len(online) == 2 * follow.REPEAT_DRIVERS * follow.REPEAT_DRIVES
-    cells = classify(follow.repeat_schedule(), ["Town1"])
+    online = [e for e in repeat_schedule() if e.phase == "online"]
+    assert len(online) == 2 * REPEAT_DRIVERS * REPEAT_DRIVES
+    cells = classify(repeat_schedule(), ["Town1"])
     by_driver: dict[str, set] = {}
     for e, c in zip(online, cells, strict=True):
         driver = e.label.rsplit(" drive", 1)[0]
@@ -114,7 +120,7 @@ def test_spearman_matches_the_textbook_formula_without_ties():
 
 
 def test_judge_sweep_reads_leads_that_follow_the_driver_and_the_end_points():
-    online = [e for e in follow.sweep_schedule() if e.phase == "online"]
+    online = [e for e in sweep_schedule() if e.phase == "online"]
     index = {e.label: i for i, e in enumerate(online)}
 
     def cost(seed, town, label, route, method):
@@ -133,7 +139,7 @@ def test_judge_sweep_reads_leads_that_follow_the_driver_and_the_end_points():
 
 
 def test_judge_repeat_reads_the_curve_per_drive(tmp_path):
-    labels = [e.label for e in follow.repeat_schedule() if e.phase == "online"]
+    labels = [e.label for e in repeat_schedule() if e.phase == "online"]
 
     def cost(seed, town, label, route, method):
         k = int(label.rsplit(" ", 1)[1])
@@ -141,7 +147,7 @@ def test_judge_repeat_reads_the_curve_per_drive(tmp_path):
             return {"explore": 300.0, "oracle": 200.0, "timing": 250.0, "belief": 300.0 - 20 * k}[method], 3.0
         return {"explore": 100.0, "oracle": 100.0, "timing": 104.0, "belief": 101.0}[method], 2.0
 
-    truth = {e.label: e for e in follow.repeat_schedule() if e.phase == "online"}
+    truth = {e.label: e for e in repeat_schedule() if e.phase == "online"}
 
     def beliefs(seed):
         from pernav.world.drivers import resolve

@@ -7,10 +7,12 @@ import random
 from pathlib import Path
 
 from pernav.env.policies import explore_policy, late_share, lateness
+from pernav.study.benchmarks import SWEEP_SHIFTS, classify, personal_schedule, split_schedule, sweep_schedule
 from pernav.study.config import preset
-from pernav.study.headroom import SEEDS, TARGETS, classify, personal_schedule, preregistration
 from pernav.world.constants import audio_duration
-from pernav.world.drivers import Context, named_user, resolve
+from pernav.world.drivers import POPULATION_AVERAGE, Context, named_user, resolve
+from recipes.benchmarks.headroom import SEEDS, SPLIT_SEEDS, TARGETS, judge, preregistration, split_preregistration
+from recipes.benchmarks.judge import main as judge_main
 
 REGISTERED = Path(__file__).parents[2] / "docs" / "figures" / "personal" / "preregistration.json"
 
@@ -24,8 +26,6 @@ def test_the_preregistered_classification_is_reproduced() -> None:
 
 
 def test_the_split_benchmark_s_preregistered_classification_is_reproduced() -> None:
-    from pernav.study.headroom import SPLIT_SEEDS, split_preregistration, split_schedule
-
     registered = json.loads((REGISTERED.parents[1] / "split" / "preregistration.json").read_text())
     assert registered == json.loads(json.dumps(split_preregistration(tuple(registered["towns"]))))
     cells = registered["cells"]
@@ -151,9 +151,6 @@ def _synthetic_results(seed: int) -> dict:
 
 
 def test_judge_computes_the_preregistered_figures_on_known_episodes(tmp_path) -> None:
-    from pernav.cli import main
-    from pernav.study.headroom import judge
-
     j = judge([_synthetic_results(0), _synthetic_results(1)])
     assert j["late"]["episodes"] == 40 and j["on_time"]["episodes"] == 24
     assert j["late"]["gap_closed"]["mean"] == pytest.approx(0.8)
@@ -165,16 +162,13 @@ def test_judge_computes_the_preregistered_figures_on_known_episodes(tmp_path) ->
         files.append(tmp_path / f"r{seed}.json")
         files[-1].write_text(json.dumps(_synthetic_results(seed)))
     out = tmp_path / "judged"
-    assert main(["judge", *map(str, files), "--out", str(out)]) == 0
+    assert judge_main([*map(str, files), "--out", str(out)]) == 0
     assert json.loads((out / "judged.json").read_text())["late"]["gap_closed"]["mean"] == pytest.approx(0.8)
-    assert main(["judge", *map(str, files), "--out", str(out)]) == 2  # nothing is overwritten
-    assert main(["judge", str(tmp_path / "missing"), "--out", str(tmp_path / "o2")]) == 2
+    assert judge_main([*map(str, files), "--out", str(out)]) == 2  # nothing is overwritten
+    assert judge_main([str(tmp_path / "missing"), "--out", str(tmp_path / "o2")]) == 2
 
 
 def test_the_sweep_shifts_only_the_average_drivers_reaction_time() -> None:
-    from pernav.study.headroom import SWEEP_SHIFTS, sweep_schedule
-    from pernav.world.drivers import POPULATION_AVERAGE
-
     online = [e for e in sweep_schedule() if e.phase == "online"]
     assert [round(e.profile().reaction_time - POPULATION_AVERAGE.reaction_time, 2) for e in online] == \
         list(SWEEP_SHIFTS)

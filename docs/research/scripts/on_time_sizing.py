@@ -21,8 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pernav.study.headroom import TARGETS, classify, episodes, personal_schedule
+from pernav.study.benchmarks import classify, episodes, personal_schedule
 from pernav.study.stats import gap_closed, paired_ratio
+from recipes.benchmarks.headroom import TARGETS
 
 FOLDERS = ([f"eo_seed{s}" for s in range(6)] + [f"fresh_seed{s}" for s in range(6, 12)]
            + [f"v2t_seed{s}" for s in range(12)] + [f"v2_seed{s}" for s in range(12, 18)])

@@ -12,7 +12,7 @@ the car enters a lane its route does not continue on (NavigationEnv's default si
 import json
 from pathlib import Path
 
-from pernav.study.headroom import judge
+from recipes.benchmarks.headroom import judge
 
 
 def main() -> None:

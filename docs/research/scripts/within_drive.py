@@ -12,7 +12,7 @@ evaluation routes. On each evaluation route (same seed for every policy, so the 
   late belief (the model's prediction ``quantile`` SDs above its mean, whatever the mean says);
 - ``tau+watch``: the late belief from the start when tau showed a missed or wrong turn, else ``watch``.
 
-It prints the mean tracking cost per class (late / on time, from the profile: :func:`pernav.study.headroom`'s
+It prints the mean tracking cost per class (late / on time, from the profile: :func:`pernav.study.benchmarks.classify`'s
 rule) and the share of the explore -> oracle gap each policy closes, with 95 % bootstrap CIs over drivers.
 
 Run (one town per process; about 6 min for 30 drivers x 2 routes on one core; docs/personal.md used population
