@@ -18,14 +18,16 @@ import yaml
 from pernav.study.benchmarks import SCHEDULES as BENCHMARK_SCHEDULES
 from pernav.study.schedule import Entry, check_recorded, paper_schedule
 from pernav.trainer.ftml import TrainConfig
-from pernav.world.constants import TOWN_NAMES
+from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_INSTRUCTIONS, TOWN_NAMES
+from pernav.world.files import key_values
 
 __all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "RENAMED_OPTIONS", "TIMING_DEFAULTS", "PresetError",
            "StudyConfig", "current_names", "learner_options", "preset"]
 
 METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau_policy choices
-LEARNERS = {"sysid": 7, "adapt": 7, "adapt_speed": 21}  # learning methods and their action counts
+# learning methods and their action counts
+LEARNERS = {"sysid": N_INSTRUCTIONS, "adapt": N_INSTRUCTIONS, "adapt_speed": N_ADAPTIVE_ACTIONS}
 # the timing learner (pernav.learners.timing): simulated population drivers it learns from offline per town, the
 # ridge penalty, the residual SDs its belief adds to the predicted mean, the gate (s earlier than explore), and the
 # guard (1: never a prompt so early that the quickest driver the evidence allows acts on it a junction too soon, nor
@@ -58,8 +60,6 @@ def learner_options(pairs: list[str], options: dict[str, Any], learner: str, int
     >>> options["quantile"]
     1.5
     """
-    from pernav.world.files import key_values
-
     try:
         parsed = key_values(pairs, list(options), f"the {learner} options")
     except ValueError as exc:

@@ -1,8 +1,8 @@
-"""Where independent work runs: in this process, in a pool of processes, or on a Ray cluster.
+r"""Where independent work runs: in this process, in a pool of processes, or on a Ray cluster.
 
-An episode is described by an :class:`EpisodeJob` (town, user, route, seed and a policy *spec*: a name, or
-a model's config + state dict + adapted parameters), so it can be shipped anywhere and gives the same
-result everywhere: each worker uses one torch thread and every seed is part of the job.
+What runs is a picklable function of a picklable item (a study's episodes are
+:class:`pernav.study.episodes.EpisodeJob`\ s), so it can be shipped anywhere and gives the same result everywhere:
+each worker uses one torch thread and every seed is part of the item.
 
 Example:
     >>> ex = make_executor(workers=1)
@@ -19,11 +19,12 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["EpisodeJob", "PoolExecutor", "RayExecutor", "SerialExecutor", "init_worker", "make_executor",
-           "run_episode_job"]
+import torch
+from tqdm.auto import tqdm
+
+__all__ = ["PoolExecutor", "RayExecutor", "SerialExecutor", "init_worker", "make_executor"]
 
 
 def _exit_with(parent: int, poll_s: float) -> None:
@@ -33,8 +34,6 @@ def _exit_with(parent: int, poll_s: float) -> None:
 
 
 def _one_thread() -> None:
-    import torch
-
     torch.set_num_threads(1)
     logging.getLogger("torchrl").setLevel(logging.WARNING)
 
@@ -52,8 +51,6 @@ def init_worker(parent: int | None = None, poll_s: float = 1.0) -> None:
 
 
 def _bar(items: Iterable[Any], desc: str | None, total: int | None = None) -> Iterable[Any]:
-    from tqdm.auto import tqdm
-
     return tqdm(items, desc=desc, total=total, leave=False, disable=desc is None)
 
 
@@ -90,7 +87,7 @@ class RayExecutor:
     """Ray tasks (one CPU each) on the cluster ``ray.init`` connected to."""
 
     def __init__(self) -> None:
-        import ray
+        import ray  # lazy: an optional dependency (pernav[ray])
 
         self.ray = ray
         self.workers = int(ray.cluster_resources().get("CPU", 1))
@@ -114,55 +111,3 @@ def make_executor(workers: int = 1, ray: bool = False) -> SerialExecutor | PoolE
     if ray:
         return RayExecutor()
     return PoolExecutor(workers) if workers > 1 else SerialExecutor()
-
-
-@dataclass(frozen=True)
-class EpisodeJob:
-    """One episode to drive; everything it depends on is in here."""
-
-    cfg: Any  # StudyConfig
-    town: str
-    entry: Any  # schedule Entry
-    route: int
-    seed: int
-    policy: str  # explore | oracle | mpc | belief
-    n_actions: int = 7
-    model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
-    params: Any = None  # adapted parameters (TensorDict), a belief (dict) for "belief", or None
-    policy_name: str = ""  # the study method this episode evaluates
-
-
-def make_policy(job: EpisodeJob) -> Any:
-    """The TensorDictModule that drives ``job``."""
-    from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
-
-    if job.policy == "explore":
-        return explore_module()
-    if job.policy == "oracle":
-        return oracle_module()
-    if job.policy == "belief":  # explore's rule re-timed for a belief about the user (the env computes it)
-        return info_action_module("belief_action")
-    if job.policy != "mpc" or job.model is None:
-        raise ValueError(f"unknown policy spec {job.policy!r}")
-    from pernav.model.dynamics import DynamicsModel
-    from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-    from pernav.planner.factory import build_planner
-
-    model = DynamicsModel(**job.model["config"])
-    model.load_state_dict(job.model["state"])
-    planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), job.cfg.planner, job.n_actions)
-    planner.params = job.params
-    return planner
-
-
-def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
-    """Drive the job's episode; its metrics (with the route)."""
-    from pernav.study.runner import episode
-    from pernav.trainer.collect import episode_metrics
-
-    t0 = time.perf_counter()
-    policy = make_policy(job)
-    belief = job.params if job.policy == "belief" else None
-    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions, belief)
-    wall_time = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
-    return {"route": job.route, **episode_metrics(trajectory), "_wall_time": wall_time}

@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import matplotlib
+
 from pernav.study.config import METHODS
 
 __all__ = ["collision_table", "running_mean", "wall_time", "write_report"]
@@ -40,10 +42,8 @@ def running_mean(values: list[float]) -> list[float]:
 
 def plot_costs(results: dict[str, Any], town: str, path: Path) -> None:
     """Paper Fig. 3: running average of the episodic cost up to each online round, one bar per method."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: after the headless backend is chosen
 
     rounds = _online(results, town)
     methods = [m for m in METHODS if all(m in it["towns"][town] for it in rounds)]
@@ -65,10 +65,8 @@ def plot_costs(results: dict[str, Any], town: str, path: Path) -> None:
 
 def plot_regret(results: dict[str, Any], town: str, path: Path) -> None:
     """Empirical regret of adapt vs hindsight: per-round model-loss gap and its running average."""
-    import matplotlib
-
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # lazy: after the headless backend is chosen
 
     reg = results["regret"].get(town)
     if not reg or not reg["labels"]:

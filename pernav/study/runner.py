@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torchrl.record.loggers import CSVLogger
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
@@ -45,16 +46,18 @@ from pernav.learners.timing import TARGETS as TIMING_TARGETS
 from pernav.learners.timing import TimingModel, timing_features
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-from pernav.planner.factory import build_planner, env_planning_config
+from pernav.planner.factory import build_planner
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
-from pernav.study.parallel import EpisodeJob, SerialExecutor, run_episode_job
+from pernav.study.episodes import EpisodeJob, episode, run_episode_job
+from pernav.study.parallel import SerialExecutor
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env, in_action_space
+from pernav.trainer.collect import derive_seed, episode_metrics, in_action_space
 from pernav.trainer.drives import load_drive
 from pernav.trainer.ensemble import EnsembleTrainer
+from pernav.world.constants import N_INSTRUCTIONS
 from pernav.world.drivers import Population, resolve
 
 __all__ = ["run_town"]
@@ -68,12 +71,12 @@ class Learner:
 
     def __init__(self, name: str, cfg: StudyConfig, town: str) -> None:
         self.name = name
-        self.n_actions = LEARNERS.get(name, 7)
+        self.n_actions = LEARNERS.get(name, N_INSTRUCTIONS)
         self.buffers = RoundBuffers(L=cfg.train.L, seed=derive_seed(cfg.seed, town, name, "buffers"))
         self.trainer = EnsembleTrainer(
             lambda: DynamicsModel(n_actions=self.n_actions, K=cfg.train.K, hidden=cfg.train.hidden,
                                   road=cfg.train.road, context=cfg.train.context), self.buffers,
-            cfg.train, size=cfg.train.ensemble, seed=derive_seed(cfg.seed, town, "init", 21 if self.n_actions == 21 else 7))
+            cfg.train, size=cfg.train.ensemble, seed=derive_seed(cfg.seed, town, "init", self.n_actions))
         self.model = self.trainer.model
         self.planner = build_planner(ImaginedNavigationEnv(make_world_model(self.model)), cfg.planner, self.n_actions)
         self.meta = name != "sysid"
@@ -114,25 +117,11 @@ def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
 def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, Any]) -> tuple:
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
-        return method, 7, None, None, method
+        return method, N_INSTRUCTIONS, None, None, method
     if method in ("timing", "belief"):  # explore's rule re-timed for the belief read from tau
-        return "belief", 7, None, adapted[method], method
+        return "belief", N_INSTRUCTIONS, None, adapted[method], method
     learner = learners[method]
     return "mpc", learner.n_actions, learner.spec(), adapted[method], method
-
-
-def _env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = 7,
-         belief: dict[str, float] | None = None):
-    config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == 21, **env_planning_config(cfg.planner)}
-    if belief is not None:
-        config["belief"] = belief
-    options = {"route": route, "user": entry.profile(), "context": entry.context()}
-    return history_env(town, options, config=config, seed=seed, K=cfg.train.K)
-
-
-def episode(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, policy: Any, n_actions: int = 7,
-            belief: dict[str, float] | None = None):
-    return drive(_env(cfg, town, entry, route, seed, n_actions, belief), policy)
 
 
 def _summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
@@ -205,8 +194,6 @@ def run_town(cfg: StudyConfig, town: str, out: str | Path, resume: bool = False,
     state = (load_checkpoint(ckpt_dir, learners) if resume else None) or RunState()
     run = _Town(cfg, town, learners, state, executor or SerialExecutor(),
                 next(i for i, e in enumerate(entries) if e.phase == "online"))
-    from torchrl.record.loggers import CSVLogger
-
     logger = CSVLogger(exp_name=town, log_dir=str(out / "logs"))
     bar = tqdm(total=len(entries), initial=state.next, desc=f"{town} rounds", position=position, leave=False)
     for index in range(state.next, len(entries)):
@@ -495,7 +482,7 @@ def _hindsight(cfg: StudyConfig, town: str, entries: list[Entry], adapt_learner:
     params = {index: hind.adapted(index, cfg, derive_seed(cfg.seed, town, entry.label, "hindsight", "personal"))
               for index, entry in online}
     jobs = [EpisodeJob(cfg, town, entry, route, derive_seed(cfg.seed, town, entry.label, "eval", route),
-                       "mpc", 7, hind.spec(), params[index], policy_name="hindsight")
+                       "mpc", N_INSTRUCTIONS, hind.spec(), params[index], policy_name="hindsight")
             for index, entry in online if not entry.drives for route in routes]  # recorded rounds: no episodes
     with _Timer(state.profile, "hindsight_evaluation_s"):
         metrics = executor.map(run_episode_job, jobs, desc=f"{town} hindsight episodes")

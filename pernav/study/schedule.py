@@ -27,7 +27,11 @@ from typing import Any
 
 from pernav.env.layout import STATE_DIM
 from pernav.study.checkpoints import file_sha256
-from pernav.world.constants import TOWN_NAMES
+from pernav.trainer.drives import load_drive, read_metrics
+from pernav.world.constants import (  # the study's drives: the 7 instructions (adapt_speed re-encodes)
+    N_INSTRUCTIONS,
+    TOWN_NAMES,
+)
 from pernav.world.drivers import CONTEXT_CHOICES, NAMED_USERS, Context, DriverProfile, ProfileError, named_user
 from pernav.world.files import DataFileError, is_file, read_data_file
 
@@ -37,7 +41,6 @@ FIELDS = ("label", "phase", "driver", "vehicle", "camera", "visual", "equipment"
 # what a recorded drive must hold: the transitions the learners store (RoundBuffers.KEYS) and the route ahead
 # (the model's road inputs, as in every simulated drive)
 DRIVE_KEYS = ("observation", "action", "history", ("next", "observation"), "route_ahead")
-N_INSTRUCTIONS = 7  # the study's drives are in the 7-instruction space (adapt_speed re-encodes them)
 
 
 class ScheduleError(ValueError):
@@ -96,15 +99,11 @@ class Entry:
 
 
 def _drive_town(path: str) -> Any:
-    from pernav.trainer.drives import read_metrics
-
     return read_metrics(path).get("town")
 
 
 def _load(where: str, path: str) -> Any:
     """A recorded drive's ``[T]`` trajectory, or a :class:`ScheduleError` naming the entry and the file."""
-    from pernav.trainer.drives import load_drive
-
     try:
         return load_drive(path)
     except ValueError:  # load_drive's own one line (never torch's advice to unpickle the file unsafely)

@@ -133,7 +133,7 @@ def run_study(cfg: StudyConfig, out: str | Path, resume: bool = False, workers: 
 
 def _run_on_ray(cfg: StudyConfig, out: Path, resume: bool, workers: int, address: str | None) -> list[dict[str, Any]]:
     try:
-        import ray
+        import ray  # lazy: an optional dependency (pernav[ray])
     except ImportError:
         raise OutputError("--ray needs Ray: pip install 'pernav[ray]'") from None
     started = not ray.is_initialized()

@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from pernav.env.torchrl_env import explore_module
 from pernav.study.config import preset
-from pernav.study.runner import episode
+from pernav.study.episodes import episode
 from pernav.study.schedule import load_schedule
 from pernav.study.stats import paired_difference
 from pernav.trainer.collect import derive_seed, episode_metrics

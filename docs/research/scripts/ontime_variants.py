@@ -25,7 +25,7 @@ import numpy as np
 
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module
-from pernav.study import runner
+from pernav.study import episodes
 from pernav.study.schedule import Entry
 from pernav.study.stats import paired_ratio
 from pernav.world.drivers import Population, resolve
@@ -46,7 +46,7 @@ def main() -> None:
         if lateness(resolve(profile, context))["excess"] >= 0.05:  # late for explore: not this check's driver
             continue
         entry = Entry(f"p{k}", "online", profile.to_dict(), **context.to_dict())
-        belief = model.belief(runner.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, explore_module()))
+        belief = model.belief(episodes.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, explore_module()))
         for r in range(2):
             route, seed = rng.randrange(10), 2000 + 10 * k + r
             rows.append({"driver": k, "route": route, **{v: drive(args.town, entry, route, seed, belief, v)

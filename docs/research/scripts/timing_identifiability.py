@@ -26,7 +26,7 @@ from pernav.env.policies import lateness, oracle_policy
 from pernav.env.torchrl_env import explore_module
 from pernav.learners.timing import FEATURES, timing_features
 from pernav.planner.retiming import RetimedExplore
-from pernav.study import runner
+from pernav.study import episodes
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
 from pernav.world.drivers import Population, resolve
@@ -100,7 +100,7 @@ def main() -> None:
         profile, context = population.sample()
         entry = Entry(f"p{k}", "offline", profile.to_dict(), **context.to_dict())
         policy = explore_module() if args.tau_policy == "explore" else RetimedExplore(p=1.0, seed=5000 + k)
-        tau = runner.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, policy)
+        tau = episodes.episode(cfg, args.town, entry, rng.randrange(10), 1000 + k, policy)
         d = resolve(profile, context)
         late = lateness(d)
         outcomes = turn_outcomes(tau) if args.tau_policy == "retimed" else []

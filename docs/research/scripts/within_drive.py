@@ -33,7 +33,7 @@ from tensordict.nn import TensorDictModule
 from pernav.env.policies import lateness
 from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
 from pernav.learners.timing import timing_features
-from pernav.study import runner
+from pernav.study import episodes, runner
 from pernav.study.config import preset
 from pernav.study.schedule import Entry
 from pernav.study.stats import gap_closed, paired_ratio
@@ -62,7 +62,7 @@ def development_drivers(cfg, town: str, drivers: int, population_seed: int):
     for k in range(drivers):
         profile, context = population.sample()
         entry = Entry(f"p{k}", "online", profile.to_dict(), **context.to_dict())
-        yield k, profile, context, entry, runner.episode(cfg, town, entry, rng.randrange(10), 1000 + k,
+        yield k, profile, context, entry, episodes.episode(cfg, town, entry, rng.randrange(10), 1000 + k,
                                                          explore_module()), rng
 
 
@@ -108,7 +108,7 @@ def main() -> None:
             variants += tuple((f"q{q:g}", info_action_module("belief_action"), _at_quantile(model, q, tau))
                               for q in args.quantiles)
             for name, policy, belief in (v for v in variants if v[0] in args.methods or v[0].startswith("q")):
-                t = runner.episode(cfg, args.town, entry, route, seed, policy, belief=belief)
+                t = episodes.episode(cfg, args.town, entry, route, seed, policy, belief=belief)
                 row[name] = float(t[-1]["next", "tracking_cost"])
                 row[name + "_collisions"] = int(t[-1]["next", "collisions"])
             rows.append(row)
