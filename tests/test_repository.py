@@ -268,3 +268,103 @@ def test_the_import_reader_finds_names_imported_through_another_module(tmp_path:
 def test_names_are_imported_from_the_module_that_defines_them() -> None:
     through = imports_through(ROOT, ("pernav", "tests", "recipes", "docs/research/scripts"))
     assert not through, "import these from the module that defines them:\n" + "\n".join(through)
+
+
+# ----- no circles between files; imports at the top of a module unless a comment says why one waits ---------------
+def _type_checking_only(tree: ast.Module) -> set[int]:
+    """The ids of the import nodes under ``if TYPE_CHECKING:`` (they never run, so they make no circle)."""
+    guarded = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            guarded |= {id(n) for child in node.body for n in ast.walk(child)}
+    return guarded
+
+
+def import_graph(root: Path) -> dict[str, set[str]]:
+    """``module -> the pernav modules it imports`` (at any depth, ``from package import submodule`` as the submodule),
+    for every module under ``root/pernav``."""
+    paths = {module_name(root, p): p for p in (root / "pernav").rglob("*.py")}
+    graph: dict[str, set[str]] = {}
+    for module, path in paths.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        skip, found = _type_checking_only(tree), set()
+        for node in ast.walk(tree):
+            if id(node) in skip:
+                continue
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.split(".")[0] == "pernav":
+                found |= {f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in paths else node.module
+                          for a in node.names}
+            elif isinstance(node, ast.Import):
+                found |= {a.name for a in node.names if a.name.split(".")[0] == "pernav"}
+        graph[module] = {m for m in found if m in paths and m != module}
+    return graph
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles of ``graph``: its strongly connected components of more than one module (Tarjan)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_circle_reader_finds_a_circle_through_a_lazy_import_and_not_through_type_checking(tmp_path: Path) -> None:
+    (tmp_path / "pernav" / "a").mkdir(parents=True)
+    (tmp_path / "pernav" / "a" / "x.py").write_text("from pernav.a import y\n")
+    (tmp_path / "pernav" / "a" / "y.py").write_text("def f():\n    from pernav.a.z import g\n")
+    (tmp_path / "pernav" / "a" / "z.py").write_text("import pernav.a.x\n")
+    (tmp_path / "pernav" / "a" / "w.py").write_text("from typing import TYPE_CHECKING\n"
+                                                    "if TYPE_CHECKING:\n    from pernav.a.x import X\n")
+    (tmp_path / "pernav" / "a" / "v.py").write_text("from pernav.a.w import W\n")
+    assert circles(import_graph(tmp_path)) == [["pernav.a.x", "pernav.a.y", "pernav.a.z"]]
+
+
+def test_no_two_files_import_each_other_even_through_others() -> None:
+    found = circles(import_graph(ROOT))
+    assert not found, "move what these share into the module that owns it:\n" + "\n".join(map(str, found))
+
+
+def late_imports(root: Path) -> list[str]:
+    """``file:line`` of each import inside a function or class of pernav without a ``# lazy: why`` comment on its line
+    (or the line above)."""
+    found = []
+    for path in sorted((root / "pernav").rglob("*.py")):
+        source = path.read_text(encoding="utf-8")
+        tree, lines = ast.parse(source), source.splitlines()
+        top, skip = {id(n) for n in tree.body}, _type_checking_only(tree)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import | ast.ImportFrom) and id(node) not in top and id(node) not in skip:
+                said = lines[node.lineno - 1] + (lines[node.lineno - 2] if node.lineno > 1 else "")
+                if "# lazy:" not in said:
+                    found.append(f"{path.relative_to(root)}:{node.lineno}")
+    return found
+
+
+def test_imports_sit_at_the_top_of_modules_unless_a_comment_says_why_one_waits() -> None:
+    late = late_imports(ROOT)
+    assert not late, "move these imports to the top of their module (or say why one waits: # lazy: ...):\n" + \
+        "\n".join(late)
