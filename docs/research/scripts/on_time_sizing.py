@@ -3,7 +3,7 @@ sized for the on-time target")
 
 Reads the judged studies of the timing learner on seeds 0-17 (explore and the oracle from ``eo_seed0-5`` and
 ``fresh_seed6-11``, the learner with its second guard from ``v2t_seed0-11`` and ``v2_seed12-17``; a later folder's
-method replaces an earlier one's, as in ``pernav judge``). It draws ``n`` seeds with replacement from those
+method replaces an earlier one's, as in ``recipes/benchmarks/judge.py``). It draws ``n`` seeds with replacement from those
 eighteen, pools their episodes, and checks the pre-registered late and on-time targets on the draw
 (:mod:`pernav.diagnostics.stats`, 1000 resamples); it prints, per ``n``, the share of draws that meet each target and
 the median upper end of the on-time ratio's CI.
