@@ -112,7 +112,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("studies", nargs="+", help="per-seed study folders (with results.json), or results.json files")
     ap.add_argument("--method", default="adapt", help="the method checked (default adapt; oracle: the ceiling)")
-    ap.add_argument("--size", type=int, default=3, help="seeds per subset (default 3, the issue's)")
+    ap.add_argument("--size", type=int, default=3, help="seeds per subset (default 3, as pre-registered)")
     ap.add_argument("--json", help="write the shares here")
     args = ap.parse_args()
     results = _load(args.studies)

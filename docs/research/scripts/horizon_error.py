@@ -3,7 +3,7 @@
 Drives explore with named users on a town's first routes and, at the steps where the retime planner would
 search, lets adapt's final meta ensemble (``--study DIR``, its checkpoint) imagine the drive's own next 12
 actions, twice: with the goals the model predicts (the paper's model) and with the goals the env would set
-from the known route (``route_goals``, :func:`pernav.model.navigation.route_goal`). It reports the median
+from the known route (``route_goals``, ``route_goal`` (removed since, in commit d640b8a)). It reports the median
 position error of the members' mean after 5 and 12 s (at 12 s also split into the error along the route, in
 route progress, and the imagined car's distance across it), and the planner's miss alarm
 (``RetimingPlanner.alarm_check``: every member more than ``--distance`` m off the route where the real car

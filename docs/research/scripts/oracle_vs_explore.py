@@ -50,7 +50,7 @@ OLDER_POPULATION = Population(seed=3, ranges={
     "reaction_time": (1.8, 2.5), "speed_factor": (0.8, 0.9), "decision_time": (2.4, 3.0),
     "turn_speed": (4.0, 5.5), "speech_tolerance": (0.0, 0.5)}, fixed_context=Context())
 OLDER = {f"older-driver sample {i}": (OLDER_POPULATION.sample()[0].to_dict(), {}) for i in range(4)}
-# batch "all-towns": the issue's own examples (slow in fog in the truck, fast on the keyboard,
+# batch "all-towns": the pre-registered examples (slow in fog in the truck, fast on the keyboard,
 # distracted) and the two next-best of batch "named", on all five towns (run with --all-towns):
 # batches "named" and "older" used Town1 and Town2 only, which have no roundabout
 EXAMPLES = {k: NAMED[k] for k in ("user3, fog, cybertruck", "user5, fog, cybertruck", "user3 (elderly-like)")}

@@ -71,7 +71,7 @@ def lateness(speed: float = 10.0, extra: dict[str, float] | None = None) -> list
 
 def population_lateness(n: int = 200, speed: float = 10.0) -> dict:
     """The same late shares for ``n`` drivers of the population prior (``population_samples``: profile fields
-    uniform in their SPEC ranges, contexts uniform): how many of them explore's timing serves late."""
+    uniform in their specified ranges, contexts uniform): how many of them explore's timing serves late."""
     from pernav.world.drivers import population_samples
 
     ex = explore_policy()

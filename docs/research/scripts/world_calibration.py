@@ -91,7 +91,7 @@ def tasks(towns: list[str], routes: int, seeds: list[int], n_traffic: int, round
 
 
 def summarize(episodes: list[dict], routes: int) -> dict:
-    """Per-town and overall figures, and the issue's targets (met or not)."""
+    """Per-town and overall figures, and the pre-registered targets (met or not)."""
     def pairs(sel):
         e = {(x["town"], x["round"], x["seed"], x["route"]): x for x in sel if x["policy"] == "explore"}
         o = {(x["town"], x["round"], x["seed"], x["route"]): x for x in sel if x["policy"] == "oracle"}
@@ -195,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="the population-average driver in the average context instead of the schedule")
     parser.add_argument("--population", action="store_true",
                         help="each online round's driver and context drawn from the population prior instead of the "
-                             "schedule's (exploration of another schedule; not the issue's judging set-up)")
+                             "schedule's (exploration of another schedule; not the pre-registered judging set-up)")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args(argv)
     if args.population and args.average:
