@@ -39,7 +39,7 @@ from pernav.study.config import BELIEF_DEFAULTS
 from pernav.study.schedule import Entry
 from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference, paired_ratio
 from pernav.world.drivers import resolve
-from recipes.benchmarks.headroom import SPLIT_TARGETS, TARGETS, judge
+from recipes.benchmarks.headroom import SPLIT_TARGETS, TARGETS, judge, plot_band
 from recipes.benchmarks.registered import registration
 
 __all__ = ["HEADROOM_FRESH_SEEDS", "HEADROOM_FRESH_TARGETS", "REPEAT_SEEDS", "REPEAT_TARGETS", "SWEEP_SEEDS",
@@ -293,9 +293,7 @@ def plot_sweep_leads(results: list[dict[str, Any]], path: str,
             if not points:
                 continue
             data[town][method] = points
-            x, m, lo, hi = (list(c) for c in zip(*points, strict=True))
-            ax.plot(x, m, marker="o", label=method)
-            ax.fill_between(x, lo, hi, alpha=0.15)
+            plot_band(ax, points, method)
         ax.set_title(town)
         ax.set_xlabel("the driver's reaction time (s)")
         ax.set_ylabel("'turn' prompt's lead (s: distance to the junction / speed)")

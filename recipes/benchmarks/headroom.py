@@ -32,8 +32,8 @@ from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference, pair
 from pernav.world.drivers import resolve
 from recipes.benchmarks.registered import registration
 
-__all__ = ["SEEDS", "SPLIT_SEEDS", "SPLIT_TARGETS", "TARGETS", "judge", "judge_markdown", "judge_split", "plot_sweep",
-           "preregistration", "split_preregistration"]
+__all__ = ["SEEDS", "SPLIT_SEEDS", "SPLIT_TARGETS", "TARGETS", "judge", "judge_markdown", "judge_split", "plot_band",
+           "plot_sweep", "preregistration", "split_preregistration"]
 
 _HEADROOM, _SPLIT = registration("headroom"), registration("split")
 #: the study seeds that judge a learner on the headroom benchmark
@@ -181,6 +181,13 @@ def judge_markdown(j: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plot_band(ax: Any, points: list[tuple[float, float, float, float]], label: str) -> None:
+    """One method's ``(x, mean, low, high)`` points: a line with markers and its CI band."""
+    x, m, lo, hi = (list(c) for c in zip(*points, strict=True))
+    ax.plot(x, m, marker="o", label=label)
+    ax.fill_between(x, lo, hi, alpha=0.15)
+
+
 def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...] = ("explore", "adapt", "timing",
                                                                                         "oracle")) -> dict[str, Any]:
     """The headroom sweep's figure: mean tracking cost (95 % CI over routes and seeds) per reaction-time shift,
@@ -208,9 +215,7 @@ def plot_sweep(results: list[dict[str, Any]], path: str, methods: tuple[str, ...
             if not points:
                 continue
             data[town][method] = points
-            x, m, lo, hi = (list(c) for c in zip(*points, strict=True))
-            ax.plot(x, m, marker="o", label=method)
-            ax.fill_between(x, lo, hi, alpha=0.15)
+            plot_band(ax, points, method)
         ax.set_title(town)
         ax.set_xlabel("reaction time − the average driver's (s)")
         ax.set_ylabel("tracking cost per route")
