@@ -13,7 +13,12 @@ needs); ``first_order=True`` treats the adaptation gradient as a constant.
 minimum along ``g`` (exact on a quadratic), so it does not overshoot on a driver whose gradient is large
 (at online time in the default study on world v1 a fixed ``alpha`` lowered the held-out loss in 27 of 36 rounds,
 backtracking in 31; ``docs/research/scripts/step_size_check.py``, docs/research/findings.md "One step, how
-long?"). When no halving passes, the step is ``alpha / 8``.
+long?"). When no halving passes (or ``tau``'s loss is not finite), ``U`` takes no step: the parameters are returned
+unchanged, so a backtracked ``U`` never makes ``tau``'s own loss worse, and it says so
+(``adapt(..., return_info=True)`` returns an :class:`AdaptInfo` with ``fell_back`` per member).
+
+``max_norm`` (the adaptation gradient's clip) has one default, :data:`MAX_NORM`, shared with
+``TrainConfig.max_grad_norm``; ``max_norm=None`` leaves the gradient unclipped.
 
 Example:
     >>> import torch
@@ -31,6 +36,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -40,10 +46,35 @@ from pernav.model.actions import with_action_indices
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 
-__all__ = ["LossFn", "adapt", "meta_parameters", "trajectory_windows"]
+__all__ = ["MAX_NORM", "AdaptInfo", "LossFn", "adapt", "meta_parameters", "trajectory_windows"]
 
 #: A model loss ``loss_fn(model, batch [B, L], params=None) -> scalar`` (``[E]`` for stacked ensemble params).
 LossFn = Callable[..., torch.Tensor]
+
+#: The adaptation gradient's norm clip: ``adapt``'s default ``max_norm`` and ``TrainConfig.max_grad_norm``'s. Typical
+#: norms are 5-20; a model whose L-step rollouts diverge on ``tau`` gives thousands (docs/reliability.md).
+MAX_NORM = 100.0
+
+
+@dataclass(frozen=True)
+class AdaptInfo:
+    """What one ``U(P, tau)`` did (``adapt(..., return_info=True)``), per member for stacked parameters.
+
+    Attributes:
+        loss: ``tau``'s loss before the step (``[]``, or ``[E]``).
+        step: the step length taken (``alpha``, a halving of it, or 0 where ``U`` fell back).
+        fell_back: where no step passed the sufficient-decrease test (``backtrack``): the parameters were returned
+            unchanged. Always false with the fixed step (``backtrack=None``), which has no test.
+    """
+
+    loss: torch.Tensor
+    step: torch.Tensor
+    fell_back: torch.Tensor
+
+    @property
+    def fallbacks(self) -> int:
+        """How many members fell back (0 or 1 for one model)."""
+        return int(self.fell_back.sum())
 
 
 def meta_parameters(model: torch.nn.Module) -> TensorDictBase:
@@ -67,8 +98,9 @@ def trajectory_windows(trajectory: TensorDictBase, L: int, stride: int = 1) -> T
 
 def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01, L: int = 5,
           first_order: bool = False, params: TensorDictBase | None = None, stride: int | None = None,
-          max_norm: float | None = None, backtrack: float | None = None,
-          loss_fn: LossFn = multistep_loss, action_key: NestedKey = "action") -> TensorDictBase:
+          max_norm: float | None = MAX_NORM, backtrack: float | None = None,
+          loss_fn: LossFn = multistep_loss, action_key: NestedKey = "action",
+          return_info: bool = False) -> TensorDictBase | tuple[TensorDictBase, AdaptInfo]:
     """``U(P, tau)``: ``params - alpha * grad L-step-loss(params; tau)`` over the L-slices of ``tau``
     (by default the slices that tile ``tau``, ``stride=L``: every transition is predicted once, at every
     rollout depth 1..L in turn; ``stride=1`` uses every overlapping slice, ~L times the work for the same
@@ -80,12 +112,16 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     Any ``nn.Module`` adapts with a ``loss_fn`` that reads it; one without ``n_context`` has no context (every
     parameter that requires grad is adapted).
 
-    ``max_norm``: the step's gradient is scaled down to at most this global norm (per member), differentiably.
-    A model whose L-step rollouts diverge on ``tau`` has an adaptation gradient of thousands (typically 5-20);
-    unclipped, ``alpha`` times it throws the adapted parameters far off and the meta loss overflows.
+    ``max_norm``: the step's gradient is scaled down to at most this global norm (per member), differentiably
+    (default :data:`MAX_NORM`, as ``TrainConfig.max_grad_norm``; ``None``: unclipped). A model whose L-step rollouts
+    diverge on ``tau`` has an adaptation gradient of thousands (typically 5-20); unclipped, ``alpha`` times it throws
+    the adapted parameters far off and the meta loss overflows.
 
     ``backtrack``: the Armijo constant ``c`` of the step-halving line search on ``tau`` (module docstring;
-    per member for stacked parameters); ``None`` (the paper): the fixed step ``alpha``.
+    per member for stacked parameters); ``None`` (the paper): the fixed step ``alpha``. With it, a member for which
+    no step passes keeps its parameters (``U`` never makes ``tau``'s loss worse).
+
+    ``return_info``: return ``(parameters, AdaptInfo)``, telling whether ``U`` fell back (the study counts those).
 
     ``loss_fn``: the loss the step descends, ``loss_fn(model, windows [N, L], params=...)``; the paper's L-step
     loss (:func:`~pernav.model.losses.multistep_loss`) by default, e.g. ``single_step_loss`` or your own.
@@ -96,7 +132,10 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     """
     if backtrack is not None and not (0.0 < backtrack < 1.0 and first_order):
         raise ValueError(f"backtrack must be in (0, 1) and needs first_order=True, got {backtrack} "
-                         f"(first_order={first_order})")
+                         f"(first_order={first_order}): pass adapt(..., first_order=True, backtrack=0.5), or "
+                         "backtrack=None for the paper's fixed step")
+    if max_norm is not None and not max_norm > 0:
+        raise ValueError(f"max_norm must be > 0 (the adaptation gradient's norm clip) or None (unclipped), got {max_norm}")
     params = meta_parameters(model) if params is None else params
     keys = [k for k, v in params.items(True, True) if isinstance(v, torch.Tensor) and v.requires_grad
             and (not getattr(model, "n_context", 0) or k == "context")]  # any nn.Module: no n_context, no context
@@ -105,7 +144,7 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
     # one-hot actions (TorchRL's OneHot spec) as indices, once: a custom loss_fn sees the same windows either way
     if action_key in trajectory.keys(True):
         trajectory = with_action_indices(trajectory, action_key, n_actions=getattr(model, "n_actions", None))
-    windows = trajectory_windows(trajectory, L, L if stride is None else stride)
+    windows = _on_model(trajectory_windows(trajectory, L, L if stride is None else stride), params)
     with torch.enable_grad():
         loss = loss_fn(model, windows, params=params)
         # stacked ensemble parameters give one loss per member: their sum's gradient is each member's own
@@ -116,8 +155,36 @@ def adapt(model: DynamicsModel, trajectory: TensorDictBase, alpha: float = 0.01,
             scale = (max_norm / (sq.sqrt() + 1e-12)).clamp(max=1.0)  # exactly 1 (no change) below max_norm
             grads = [g * scale.reshape(scale.shape + (1,) * (g.ndim - lead)) for g in grads]
     if backtrack is None:
-        return _step(params, keys, grads, alpha)
-    return _backtracked(model, windows, params, keys, grads, loss.detach(), alpha, backtrack, loss_fn)
+        adapted = _step(params, keys, grads, alpha)
+        if not return_info:
+            return adapted
+        loss0 = loss.detach()
+        return adapted, AdaptInfo(loss0, torch.full_like(loss0, alpha), torch.zeros_like(loss0, dtype=torch.bool))
+    adapted, info = _backtracked(model, windows, params, keys, grads, loss.detach(), alpha, backtrack, loss_fn)
+    return (adapted, info) if return_info else adapted
+
+
+def _on_model(data: TensorDictBase, params: TensorDictBase) -> TensorDictBase:
+    """``data`` on the device of ``params`` and with their floating dtype (a float64 or CUDA model adapts on the
+    data a float32 CPU env recorded); ``data`` itself when it already is."""
+    reference = next((v for v in params.values(True, True) if isinstance(v, torch.Tensor) and v.is_floating_point()),
+                     None)
+    if reference is None:
+        return data
+    return to_model(data, reference.device, reference.dtype)
+
+
+def to_model(data: TensorDictBase, device: torch.device, dtype: torch.dtype) -> TensorDictBase:
+    """``data`` moved to ``device`` and its floating-point entries cast to ``dtype``; ``data`` itself (no copy)
+    when nothing needs to change, so a model already on the data's device and dtype computes exactly as before."""
+    leaves = [(k, v) for k, v in data.items(True, True) if isinstance(v, torch.Tensor)]
+    if all(v.device == device and (not v.is_floating_point() or v.dtype == dtype) for _, v in leaves):
+        return data
+    out = data.to(device) if any(v.device != device for _, v in leaves) else data.clone(False)
+    for key, value in out.items(True, True):
+        if isinstance(value, torch.Tensor) and value.is_floating_point() and value.dtype != dtype:
+            out.set(key, value.to(dtype))
+    return out
 
 
 def _step(params: TensorDictBase, keys: list, grads: list, step: float | torch.Tensor) -> TensorDictBase:
@@ -133,9 +200,9 @@ def _step(params: TensorDictBase, keys: list, grads: list, step: float | torch.T
 @torch.no_grad()
 def _backtracked(model: DynamicsModel, windows: TensorDictBase, params: TensorDictBase, keys: list, grads: list,
                  loss0: torch.Tensor, alpha: float, c: float, loss_fn: LossFn = multistep_loss,
-                 halvings: int = 3) -> TensorDictBase:
-    """Each member's largest step in ``alpha, alpha/2, ...`` that passes the Armijo test (the smallest when
-    none does)."""
+                 halvings: int = 3) -> tuple[TensorDictBase, AdaptInfo]:
+    """Each member's largest step in ``alpha, alpha/2, ...`` that passes the Armijo test; a member for which none
+    does keeps its parameters (no step)."""
     lead = params.batch_dims
     g2 = sum(g.pow(2).flatten(lead).sum(-1) for g in grads)
     step = torch.full_like(loss0, alpha / 2 ** halvings)
@@ -147,4 +214,11 @@ def _backtracked(model: DynamicsModel, windows: TensorDictBase, params: TensorDi
         settled |= ok
         if bool(settled.all()):
             break
-    return _step(params, keys, grads, step).detach()
+    adapted = _step(params, keys, grads, step)
+    fell_back = ~settled
+    if bool(fell_back.any()):  # no step passed: those members keep their parameters exactly
+        for k in keys:
+            old = params.get(k)
+            adapted.set(k, torch.where(fell_back.reshape(fell_back.shape + (1,) * (old.ndim - lead)), old,
+                                       adapted.get(k)))
+    return adapted.detach(), AdaptInfo(loss0, torch.where(fell_back, torch.zeros_like(step), step), fell_back)

@@ -321,7 +321,10 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
 
 def _town_result(run: _Town) -> dict[str, Any]:
     state = run.state
-    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped}
+    diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
+                          # U's steps that fell back to the unadapted parameters (no step passed the test on tau)
+                          "adapt_fallbacks": learner.trainer.fallbacks,
+                          "adapt_fallback_rounds": learner.trainer.fallback_rounds}
                    for name, learner in run.learners.items()}
     if state.timing_beliefs:  # the timing learner ran online
         diagnostics["timing"] = {"beliefs": state.timing_beliefs}

@@ -35,7 +35,7 @@ from pernav.model.adapt import LossFn, adapt, meta_parameters
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
-from pernav.trainer.ftml import FTMLTrainer, TrainConfig
+from pernav.trainer.ftml import FTMLTrainer, TrainConfig, keyed_loss
 
 __all__ = ["EnsembleTrainer"]
 
@@ -64,16 +64,16 @@ class EnsembleTrainer:
                 torch.manual_seed(seed + i)
                 model = make_model()
             self.members.append(FTMLTrainer(model, buffers, config, seed=seed + i, loss_fn=loss_fn))
-        self.config, self._loss_fn = config, loss_fn
+        self.config, self._loss_fn = self.members[0].config, loss_fn  # the model's and buffers' fields read once
         # [E, trajectories]: each member's weight of each trajectory of ``buffers`` (bootstrap counts, set by
         # fine_tuned(..., bootstrap=True)); None: every window weighs the same for every member
         self.trajectory_weights: torch.Tensor | None = None
 
     @property
     def loss_fn(self) -> LossFn:
-        """The loss given, or (None) this module's ``multistep_loss``, looked up at each use so that a patched
-        module function (the reliability tests' NaN loss) is the one called."""
-        return self._loss_fn if self._loss_fn is not None else multistep_loss
+        """The loss given, or (None) this module's ``multistep_loss`` on the buffers' entry names, looked up at each
+        use so that a patched module function (the reliability tests' NaN loss) is the one called."""
+        return self._loss_fn if self._loss_fn is not None else keyed_loss(multistep_loss, self.buffers)
 
     @classmethod
     def from_states(cls, config: dict[str, Any], states: list[dict[str, Any]], train: TrainConfig,
@@ -108,6 +108,16 @@ class EnsembleTrainer:
     def clipped(self) -> int:
         return sum(m.clipped for m in self.members)
 
+    @property
+    def fallbacks(self) -> int:
+        """Members' test-time ``U`` steps that fell back to the unadapted parameters (:attr:`FTMLTrainer.fallbacks`)."""
+        return sum(m.fallbacks for m in self.members)
+
+    @property
+    def fallback_rounds(self) -> list[int]:
+        """The rounds in which some member's ``U`` fell back, each once, in order."""
+        return sorted({r for m in self.members for r in m.fallback_rounds})
+
     def fit_normalization(self) -> None:
         for m in self.members:
             m.fit_normalization()
@@ -130,13 +140,16 @@ class EnsembleTrainer:
         run as one batched model (their losses sum; each gets its own gradient), ~E times fewer small ops."""
         cfg, model = self.config, self.model
         params = torch.stack([meta_parameters(m.model) for m in self.members])  # [E], differentiable
-        total = torch.zeros(len(self.members))
+        like = next(v for v in params.values(True, True) if v.is_floating_point())  # the members' dtype and device
+        total = torch.zeros(len(self.members), dtype=like.dtype, device=like.device)
         for r, n, batch in batches:
             used = (adapt(model, self.buffers.tau(r), alpha=cfg.alpha, L=cfg.L, first_order=cfg.first_order,
-                          params=params, max_norm=cfg.max_grad_norm, loss_fn=self.loss_fn) if meta else params)
+                          params=params, max_norm=cfg.max_grad_norm, loss_fn=self.loss_fn,
+                          action_key=self.buffers.action_key) if meta else params)
+            batch = self.members[0].on_model(batch)
             # weights only when set (bootstrap): a loss without a weights argument works everywhere else
             weights = {} if self.trajectory_weights is None else {
-                "weights": self.trajectory_weights[:, batch["traj"][:, 0]]}
+                "weights": self.trajectory_weights[:, batch["traj"][:, 0].cpu()].to(like)}
             total = total + self.loss_fn(model, batch, params=used, **weights) * (n / cfg.batch)
         values = total.detach()
         for m in self.members:
@@ -155,11 +168,8 @@ class EnsembleTrainer:
         out = []
         backtrack = None if fixed_step else self.config.backtrack
         for m in self.members:
-            if adapted:
-                with torch.enable_grad():
-                    out.append(adapt(m.model, tau, alpha=alpha, L=self.config.L, first_order=True,
-                                     max_norm=self.config.max_grad_norm, backtrack=backtrack,
-                                     loss_fn=self.loss_fn).detach())
+            if adapted:  # counted where U falls back (FTMLTrainer.fallbacks)
+                out.append(m.adapted(tau, backtrack, alpha))
             else:
                 out.append(meta_parameters(m.model).detach().clone())
         return out

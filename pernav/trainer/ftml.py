@@ -30,6 +30,7 @@ Example:
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -38,14 +39,14 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from pernav.model.adapt import LossFn, adapt, trajectory_windows
+from pernav.model.adapt import MAX_NORM, AdaptInfo, LossFn, adapt, to_model, trajectory_windows
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.egocentric import ROAD_MAX, road_of
 from pernav.model.losses import multistep_loss
 from pernav.trainer.buffers import RoundBuffers
 from pernav.world.files import key_values
 
-__all__ = ["FTMLTrainer", "TrainConfig", "check_consistent"]
+__all__ = ["FTMLTrainer", "TrainConfig", "check_consistent", "keyed_loss"]
 
 log = logging.getLogger("pernav.trainer")
 
@@ -81,7 +82,7 @@ class TrainConfig:
     # gradient-norm clip of every update and of U's adaptation step (None: none). Typical norms are 5-20; a
     # model whose rollouts diverge gives thousands, and unclipped one such step left an ensemble member whose
     # every later meta update overflowed (skipped, so frozen bad; docs/reliability.md)
-    max_grad_norm: float | None = 100.0
+    max_grad_norm: float | None = MAX_NORM  # adapt's own default max_norm: one value for both
     # test-time U (planning, the held-out check; not the meta updates): the Armijo constant of a step-halving
     # line search from alpha on tau (pernav.model.adapt); None: the paper's fixed step alpha. A fixed step
     # overshoots on a driver whose gradient is large (docs/research/findings.md, "One step, how long?")
@@ -129,24 +130,49 @@ class TrainConfig:
 
 
 _OPTIONAL = ("max_grad_norm", "backtrack")  # the train options that may be null (off)
+_DEFAULT = TrainConfig()
 
 #: The TrainConfig fields that describe the model (``DynamicsModel.config()`` keys of the same names). The trainer
-#: itself never reads them, so a model built otherwise would train silently against the config's word.
+#: reads them from its model; a config that names other values is refused (:func:`check_consistent`).
 MODEL_FIELDS = ("K", "hidden", "road", "context")
 
 
-def check_consistent(model: torch.nn.Module, buffers: RoundBuffers, config: TrainConfig) -> None:
-    """``ValueError`` naming every field where ``model`` (its ``config()``, where it has one) or ``buffers``
-    (their ``L``) disagree with ``config``."""
+def check_consistent(model: torch.nn.Module, buffers: RoundBuffers, config: TrainConfig) -> TrainConfig:
+    """The config a trainer of ``model`` on ``buffers`` uses: ``config`` with the model's fields (``MODEL_FIELDS``,
+    from its ``config()`` where it has one) and the buffers' ``L``, so that each is given once, where it is built.
+
+    A field left at its ``TrainConfig`` default is read from the model or buffers; one set to another value than
+    theirs is refused: ``ValueError`` naming every such field and the fix. ``config`` itself is returned when it
+    already agrees."""
     built = model.config() if callable(getattr(model, "config", None)) else {}
-    wrong = [f"TrainConfig.{name}={getattr(config, name)!r} but the model's {name}={built[name]!r}"
-             for name in MODEL_FIELDS
-             if name in built and _plain(built[name]) != _plain(getattr(config, name))]
-    if buffers.L != config.L:  # adapt() would use the config's L while the buffers sample windows of theirs
-        wrong.append(f"TrainConfig.L={config.L} but RoundBuffers.L={buffers.L}")
+    wrong, read = [], {}
+    for name in MODEL_FIELDS:
+        if name not in built or _plain(built[name]) == _plain(getattr(config, name)):
+            continue
+        if _plain(getattr(config, name)) == _plain(getattr(_DEFAULT, name)):  # not given: the model's
+            read[name] = _plain(built[name])
+        else:
+            wrong.append(f"TrainConfig.{name}={getattr(config, name)!r} but the model's {name}={built[name]!r}")
+    if buffers.L != config.L:  # adapt() uses the config's L while the buffers sample windows of theirs
+        if config.L == _DEFAULT.L:
+            read["L"] = buffers.L
+        else:
+            wrong.append(f"TrainConfig.L={config.L} but RoundBuffers.L={buffers.L}")
     if wrong:
         raise ValueError("the trainer's TrainConfig disagrees with its model or buffers: " + "; ".join(wrong)
-                         + " (build them from the same config)")
+                         + " (give each once: leave these TrainConfig fields at their defaults and the trainer reads "
+                         "them from the model and buffers, or build all three from the same config)")
+    return replace(config, **read) if read else config
+
+
+def keyed_loss(loss: LossFn, buffers: RoundBuffers) -> LossFn:
+    """``loss`` (a loss taking ``observation_key=``, ``action_key=``, ``history_key=``, as ``multistep_loss``) reading
+    the entries ``buffers`` store; ``loss`` itself for the default names."""
+    names = {"observation_key": buffers.observation_key, "action_key": buffers.action_key,
+             "history_key": buffers.history_key}
+    if names == {"observation_key": "observation", "action_key": "action", "history_key": "history"}:
+        return loss
+    return functools.partial(loss, **names)
 
 
 def _plain(value: Any) -> Any:
@@ -157,30 +183,62 @@ class FTMLTrainer:
     """Owns one model, its Adam optimizer and its data stream (``RoundBuffers``).
 
     Any :class:`~pernav.model.dynamics.DynamicsModel` (any state size and ``delta``); ``loss_fn`` is the loss
-    of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default). The model's
-    ``K``, ``hidden``, ``road`` and ``context`` and the buffers' ``L`` must be the config's (``ValueError``).
-    Buffers with other entry names (``RoundBuffers(observation_key=...)``) need a ``loss_fn`` that reads them, e.g.
-    ``functools.partial(multistep_loss, observation_key=...)``."""
+    of the updates, of ``U`` and of :meth:`round_loss` (the paper's L-step loss by default, reading the buffers'
+    entry names: ``RoundBuffers(observation_key=...)`` needs nothing more). The model's ``K``, ``hidden``, ``road``
+    and ``context`` and the buffers' ``L`` are read from them (``config`` may leave them at their defaults; a
+    different value is refused, :func:`check_consistent`); ``self.config`` is the config in use. Batches and ``tau``
+    go to the model's device and floating dtype (a float64 or CUDA model trains on the buffers' data as it is).
+
+    Attributes:
+        skipped, clipped: updates skipped (non-finite) and updates whose gradient was clipped.
+        fallbacks: test-time ``U`` steps (backtracked) that fell back to the unadapted parameters because no step
+            passed the sufficient-decrease test on ``tau``; ``fallback_rounds``: their rounds (tau's ``"round"``)."""
 
     def __init__(self, model: DynamicsModel, buffers: RoundBuffers, config: TrainConfig, seed: int = 0,
                  loss_fn: LossFn | None = None) -> None:
-        check_consistent(model, buffers, config)
+        config = check_consistent(model, buffers, config)
         self.model, self.buffers, self.config, self._loss_fn = model, buffers, config, loss_fn
         self.optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         self.generator = torch.Generator().manual_seed(seed)
-        self.skipped = self.clipped = 0
+        self.skipped = self.clipped = self.fallbacks = 0
+        self.fallback_rounds: list[int] = []
         self.losses: list[float] = []
 
     @property
     def loss_fn(self) -> LossFn:
-        """The loss given, or (None) this module's ``multistep_loss``, looked up at each use so that a patched
-        module function (the reliability tests' NaN loss) is the one called."""
-        return self._loss_fn if self._loss_fn is not None else multistep_loss
+        """The loss given, or (None) this module's ``multistep_loss`` on the buffers' entry names, looked up at each
+        use so that a patched module function (the reliability tests' NaN loss) is the one called."""
+        if self._loss_fn is not None:
+            return self._loss_fn
+        return keyed_loss(multistep_loss, self.buffers)
+
+    def on_model(self, data: TensorDictBase) -> TensorDictBase:
+        """``data`` on the model's device and floating dtype (``data`` itself when it already is)."""
+        reference = next((t for t in (*self.model.parameters(), *self.model.buffers()) if t.is_floating_point()), None)
+        return data if reference is None else to_model(data, reference.device, reference.dtype)
+
+    def adapted(self, tau: TensorDictBase, backtrack: float | None, alpha: float | None = None) -> TensorDictBase:
+        """Test-time ``U(P, tau)`` (first order, detached), counting a fallback (:attr:`fallbacks`)."""
+        with torch.enable_grad():
+            params, info = adapt(self.model, tau, alpha=self.config.alpha if alpha is None else alpha,
+                                 L=self.config.L, first_order=True, max_norm=self.config.max_grad_norm,
+                                 backtrack=backtrack, loss_fn=self.loss_fn, action_key=self.buffers.action_key,
+                                 return_info=True)
+        self.note(info, tau)
+        return params.detach()
+
+    def note(self, info: AdaptInfo, tau: TensorDictBase) -> None:
+        """Count ``U``'s fallbacks (:class:`~pernav.model.adapt.AdaptInfo`) on ``tau`` (its round from ``"round"``)."""
+        if info.fallbacks:
+            self.fallbacks += info.fallbacks
+            self.fallback_rounds.append(int(tau["round"].reshape(-1)[0]) if "round" in tau.keys() else -1)
+            log.info("U fell back on tau (round %s): no step passed the sufficient-decrease test; the unadapted "
+                     "parameters are used", self.fallback_rounds[-1])
 
     # ----- data ---------------------------------------------------------------------------------
     def fit_normalization(self) -> None:
         """Set the model's input/output statistics from all data so far (done once, at warm start)."""
-        data, buffers = self.buffers.all_data(), self.buffers
+        data, buffers = self.on_model(self.buffers.all_data()), self.buffers
         self.model.fit_normalization(data[buffers.history_key], data[buffers.action_key], data[buffers.keys[-1]],
                                      road_of(data))
 
@@ -246,8 +304,8 @@ class FTMLTrainer:
         for r, n, batch in self.meta_batches() if batches is None else batches:
             adapted = adapt(self.model, self.buffers.tau(r), alpha=self.config.alpha, L=self.config.L,
                             first_order=self.config.first_order, max_norm=self.config.max_grad_norm,
-                            loss_fn=self.loss_fn)
-            total = total + self.loss_fn(self.model, batch, params=adapted) * (n / self.config.batch)
+                            loss_fn=self.loss_fn, action_key=self.buffers.action_key)
+            total = total + self.loss_fn(self.model, self.on_model(batch), params=adapted) * (n / self.config.batch)
         return self._apply(total)
 
     def plain_update(self, batches: list[tuple[int, int, Any]] | None = None) -> float:
@@ -255,7 +313,7 @@ class FTMLTrainer:
         :meth:`meta_update`, from :meth:`plain_batches`."""
         total = 0.0
         for _r, n, batch in self.plain_batches() if batches is None else batches:
-            total = total + self.loss_fn(self.model, batch) * (n / self.config.batch)
+            total = total + self.loss_fn(self.model, self.on_model(batch)) * (n / self.config.batch)
         return self._apply(total)
 
     def train(self, updates: int, meta: bool) -> list[float]:
@@ -273,11 +331,7 @@ class FTMLTrainer:
         ``tau`` itself (then it is not held out)."""
         tau = self.buffers.tau(round_)
         if adapted and params is None:
-            with torch.enable_grad():
-                params = adapt(self.model, tau, alpha=self.config.alpha, L=self.config.L, first_order=True,
-                               max_norm=self.config.max_grad_norm, backtrack=self.config.backtrack,
-                               loss_fn=self.loss_fn)
-            params = params.detach()
+            params = self.adapted(tau, self.config.backtrack)
         elif not adapted:
             params = None
         data = self.buffers.data(round_)
@@ -291,7 +345,7 @@ class FTMLTrainer:
             by_length.setdefault(w.shape[1], []).append(w)
         total, count = 0.0, 0
         for group in by_length.values():
-            batch = torch.cat(group)
+            batch = self.on_model(torch.cat(group))
             total += float(self.loss_fn(self.model, batch, params=params)) * batch.shape[0]
             count += batch.shape[0]
         return total / count
@@ -300,7 +354,8 @@ class FTMLTrainer:
     def state_dict(self) -> dict[str, Any]:
         return {"model": self.model.state_dict(), "model_config": self.model.config(),
                 "optimizer": self.optimizer.state_dict(), "generator": self.generator.get_state(),
-                "skipped": self.skipped, "clipped": self.clipped}
+                "skipped": self.skipped, "clipped": self.clipped, "fallbacks": self.fallbacks,
+                "fallback_rounds": list(self.fallback_rounds)}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.model.load_state_dict(state["model"])
@@ -310,3 +365,5 @@ class FTMLTrainer:
         self.generator.set_state(state["generator"])
         self.skipped = int(state["skipped"])
         self.clipped = int(state.get("clipped", 0))  # checkpoints before gradient clipping have none
+        self.fallbacks = int(state.get("fallbacks", 0))  # nor before U's fallback
+        self.fallback_rounds = list(state.get("fallback_rounds", []))

@@ -14,7 +14,7 @@ from pernav.model.adapt import adapt, meta_parameters
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.ensemble import EnsembleTrainer
-from pernav.trainer.ftml import TrainConfig
+from pernav.trainer.ftml import FTMLTrainer, TrainConfig
 
 
 def _trajectory(T: int, K: int = 5, seed: int = 0) -> TensorDict:
@@ -297,8 +297,10 @@ def test_backtracking_takes_the_largest_halved_step_that_passes_armijo_per_membe
                            if multistep_loss(ens.model, windows, params=adapt(
                                ens.model, tau, alpha=alpha / 2 ** j, L=5, first_order=True, params=stacked,
                                max_norm=100.0))[i] <= loss0[i] - 0.5 * alpha / 2 ** j * g2[i]]
-                expected = passing[0] if passing else alpha / 8
-                assert abs(_step_size(got[i], stacked[i], unit[i], keys) / expected - 1) < 1e-2  # halvings differ 2x
+                if passing:
+                    assert abs(_step_size(got[i], stacked[i], unit[i], keys) / passing[0] - 1) < 1e-2  # halvings 2x
+                else:  # no step passes: U keeps the member's parameters exactly
+                    assert all(torch.equal(got[i].get(k), stacked[i].get(k)) for k in keys)
                 # each member's step is its own: the same as adapting that member alone
                 alone = adapt(ens.members[i].model, tau, alpha=alpha, L=5, first_order=True, max_norm=100.0,
                               backtrack=0.5)
@@ -391,23 +393,38 @@ def test_ensemble_trainer_uses_its_loss_fn_in_updates_adaptation_fine_tuning_and
 
 
 def test_trainers_refuse_a_config_that_disagrees_with_the_model_or_the_buffers():
-    from pernav.trainer.ftml import FTMLTrainer
-
     buffers = RoundBuffers(L=3, seed=0)
     buffers.add(0, _trajectory(20, K=1), tau=True)
-    config = TrainConfig(K=5, hidden=[256] * 3, L=7)
-    expected = (r"TrainConfig.K=5 but the model's K=1; TrainConfig.hidden=\[256, 256, 256\] but the model's "
-                r"hidden=\[8\]; TrainConfig.L=7 but RoundBuffers.L=3")
+    config = TrainConfig(K=2, hidden=[64], L=7)
+    expected = (r"TrainConfig.K=2 but the model's K=1; TrainConfig.hidden=\[64\] but the model's "
+                r"hidden=\[8\]; TrainConfig.L=7 but RoundBuffers.L=3 \(give each once")
     with pytest.raises(ValueError, match=expected):
         FTMLTrainer(DynamicsModel(K=1, hidden=(8,)), buffers, config)
     with pytest.raises(ValueError, match=expected):
         EnsembleTrainer(lambda: DynamicsModel(K=1, hidden=(8,)), buffers, config, size=2)
-    with pytest.raises(ValueError, match=r"TrainConfig.context=0 but the model's context=2"):
-        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), context=2), buffers, TrainConfig(K=1, hidden=[8], L=3))
-    with pytest.raises(ValueError, match=r"TrainConfig.road=0 but the model's road=4"):
-        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), road=4), buffers, TrainConfig(K=1, hidden=[8], L=3))
+    with pytest.raises(ValueError, match=r"TrainConfig.context=1 but the model's context=2"):
+        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), context=2), buffers, TrainConfig(context=1))
+    with pytest.raises(ValueError, match=r"TrainConfig.road=2 but the model's road=4"):
+        FTMLTrainer(DynamicsModel(K=1, hidden=(8,), road=4), buffers, TrainConfig(road=2))
     trainer = FTMLTrainer(DynamicsModel(K=1, hidden=(8,)), buffers, TrainConfig(K=1, hidden=[8], L=3, batch=4))
     FTMLTrainer(DynamicsModel(K=1, hidden=(8,), road=4), buffers, TrainConfig(L=3).for_model(  # a saved model's
         DynamicsModel(K=1, hidden=(8,), road=4).config()))
     trainer.fit_normalization()
     assert len(trainer.train(1, meta=True)) == 1  # a consistent one trains
+
+
+def test_each_setting_is_given_once_the_trainer_reads_the_model_and_the_buffers():
+    """K, hidden, road and context left at TrainConfig's defaults are the model's, L the buffers'."""
+    buffers = RoundBuffers(L=3, seed=0)
+    buffers.add(0, _trajectory(20, K=1), tau=True)
+    model = DynamicsModel(K=1, hidden=(8,), context=2)
+    config = TrainConfig(batch=4)
+    trainer = FTMLTrainer(model, buffers, config)
+    assert (trainer.config.K, trainer.config.hidden, trainer.config.context, trainer.config.L) == (1, [8], 2, 3)
+    assert config.K == 5 and config.L == 5  # the caller's config is not changed
+    ensemble = EnsembleTrainer(lambda: DynamicsModel(K=1, hidden=(8,)), buffers, TrainConfig(batch=4), size=2)
+    assert ensemble.config.L == 3 and ensemble.config.K == 1
+    same = TrainConfig(batch=4, K=1, hidden=[8], L=3)
+    assert FTMLTrainer(DynamicsModel(K=1, hidden=(8,)), buffers, same).config is same  # nothing to read: as given
+    trainer.fit_normalization()
+    assert len(trainer.train(1, meta=True)) == 1
