@@ -34,7 +34,7 @@ from pernav.env.layout import STATE_DIM
 from pernav.model.egocentric import ROAD_MAX, EgocentricDifferences
 from pernav.transforms.history import HistoryWindow
 
-__all__ = ["DELTAS", "DynamicsModel", "PlainDifferences"]
+__all__ = ["DELTAS", "DynamicsModel", "PlainDifferences", "n_discrete_actions"]
 
 
 class PlainDifferences:
@@ -70,8 +70,13 @@ class PlainDifferences:
 DELTAS = {"egocentric": EgocentricDifferences, "plain": PlainDifferences}
 
 
-def _discrete_actions(n_actions: int | TensorSpec) -> int:
-    """The number of actions of an int or a discrete action spec; ``ValueError`` for a continuous spec."""
+def n_discrete_actions(n_actions: int | TensorSpec) -> int:
+    """The number of actions of an int or a discrete action spec (``Categorical``, ``OneHot``); ``ValueError`` for a
+    continuous spec.
+
+    >>> n_discrete_actions(OneHot(3)), n_discrete_actions(5)
+    (3, 5)
+    """
     if not isinstance(n_actions, TensorSpec):
         return int(n_actions)
     if isinstance(n_actions, (Categorical, OneHot)):
@@ -130,7 +135,7 @@ class DynamicsModel(nn.Module):
                  hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0,
                  delta: str | EgocentricDifferences | PlainDifferences = "auto") -> None:
         super().__init__()
-        n_actions = _discrete_actions(n_actions)
+        n_actions = n_discrete_actions(n_actions)
         if int(state_dim) < 1 or int(n_actions) < 1:
             raise ValueError(f"state_dim and n_actions must be >= 1, got {state_dim} and {n_actions}")
         if isinstance(delta, str):

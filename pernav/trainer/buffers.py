@@ -8,6 +8,12 @@ never draws from it: it holds no whole window. ``short`` counts those per round.
 ``tau_t`` is kept apart (:meth:`RoundBuffers.tau`), and so are the round's user's calibration drives, if any
 (:meth:`RoundBuffers.user_trajectories`: tau and those). Everything saves to and loads from a folder.
 
+An add is split into episodes as TorchRL marks them (:func:`~pernav.trainer.trajectories.split_episodes`: a
+``[B, T]`` batch, a collector's ``("collector", "traj_ids")``, ``("next", "done")``) and validated whole before
+anything is written (keys, shapes, dtypes cast where lossless, finite values, actions in range): a refused add
+changes nothing. The storage is TorchRL's, in memory (``LazyTensorStorage``) or memory-mapped
+(``LazyMemmapStorage``), on a ``device``; ``len(buffers)`` is the number of transitions stored.
+
 Example:
     >>> import torch
     >>> from tensordict import TensorDict
@@ -25,6 +31,7 @@ Example:
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import operator
@@ -35,12 +42,15 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
-from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
+from torchrl.data import LazyMemmapStorage, LazyTensorStorage, SliceSampler, TensorDictReplayBuffer, TensorSpec
+from torchrl.envs import Transform
 
 from pernav.model.actions import action_indices
+from pernav.model.dynamics import n_discrete_actions
 from pernav.model.egocentric import road_of
+from pernav.trainer.trajectories import cast_losslessly, check_actions, check_finite, split_episodes
 
-__all__ = ["KEYS", "SENSING_KEYS", "RoundBuffers"]
+__all__ = ["KEYS", "SENSING_KEYS", "STORAGES", "RoundBuffers"]
 
 log = logging.getLogger("pernav.trainer")
 
@@ -66,11 +76,20 @@ KEYS = ("observation", "action", "history", ("next", "observation"))
 #: has it: a belief about the driver reads it at round time. The sampled
 #: storage leaves it out (the dynamics model reads the decision steps only).
 SENSING_KEYS = ("played", "prompt_start", "prompt_end", "frames")
+#: The storages a round's buffer may use (``RoundBuffers(storage=...)``): TorchRL's, in memory or memory-mapped.
+STORAGES = {"memory": LazyTensorStorage, "memmap": LazyMemmapStorage}
 
 
 def _next(key: NestedKey) -> tuple[str, ...]:
     """``("next", key)`` for a key or a nested key."""
     return ("next", key) if isinstance(key, str) else ("next", *key)
+
+
+def _on(data: TensorDictBase, device: torch.device) -> TensorDictBase:
+    """``data`` on ``device``: itself when every entry already is there."""
+    if all(value.device == device for value in data.values(True, True)):
+        return data
+    return data.to(device)
 
 
 def _round_id(round_: int) -> int:
@@ -87,10 +106,10 @@ def _round_id(round_: int) -> int:
 class RoundBuffers:
     """One slice-sampling replay buffer per round, plus each round's adaptation trajectory.
 
-    A trajectory is checked whole before anything is written (:meth:`add`): a refused one leaves the storage,
-    the trajectory ids and ``lengths`` as they were. A round that would exceed ``capacity`` refuses the trajectory
-    (nothing is ever overwritten), so ``lengths`` always describes the storage. :meth:`sample` draws trajectories
-    uniformly, not by length.
+    An add is checked whole before anything is written (:meth:`add`): a refused one leaves the storage, the
+    trajectory ids, ``lengths``, the taus and the sampling generator as they were. A round that would exceed
+    ``capacity`` refuses the trajectory (nothing is ever overwritten), so ``lengths`` always describes the storage.
+    :meth:`sample` draws trajectories uniformly, not by length.
 
     Args:
         L: window length of :meth:`sample` (the L of the L-step loss).
@@ -98,7 +117,14 @@ class RoundBuffers:
         seed: seed of the sampling generator (sampling is reproducible given the call sequence).
         observation_key, action_key, history_key: where a trajectory holds the state (and ``("next", key)`` the next
             one), the action and the :class:`~pernav.transforms.HistoryWindow` (its ``out_keys``); stored and
-            sampled under the same names (pass the same keys to the losses). Defaults: :data:`KEYS`.
+            sampled under the same names (a trainer's default loss reads them). Defaults: :data:`KEYS`.
+        n_actions: the number of discrete actions (an int, or the env's ``Categorical`` / ``OneHot`` action spec);
+            an action outside it is refused. ``None``: read from each trajectory's history window (its width minus
+            the state's: the one-hot of the actions).
+        storage: ``"memory"`` (TorchRL's ``LazyTensorStorage``) or ``"memmap"`` (``LazyMemmapStorage``, on disk).
+        device: where the storage, the taus and the samples live (e.g. the model's); ``None``: the CPU.
+        transform: a TorchRL ``Transform`` applied to sampled windows (each round's buffer gets its own copy), as
+            ``TensorDictReplayBuffer(transform=...)``; not saved (pass it again to :meth:`load`).
 
     Attributes:
         lengths: each round's trajectory lengths, in the order added.
@@ -106,9 +132,18 @@ class RoundBuffers:
     """
 
     def __init__(self, L: int = 5, capacity: int = 10_000, seed: int = 0, *, observation_key: NestedKey = "observation",
-                 action_key: NestedKey = "action", history_key: NestedKey = "history") -> None:
+                 action_key: NestedKey = "action", history_key: NestedKey = "history",
+                 n_actions: int | TensorSpec | None = None, storage: str = "memory",
+                 device: str | torch.device | None = None, transform: Transform | None = None) -> None:
+        if isinstance(L, bool) or not hasattr(L, "__index__") or operator.index(L) < 1:
+            raise ValueError(f"RoundBuffers(L=) is the window length of the L-step loss, an integer >= 1; got {L!r}")
+        if storage not in STORAGES:
+            raise ValueError(f"RoundBuffers(storage={storage!r}): choose one of {', '.join(STORAGES)} (TorchRL's "
+                             "LazyTensorStorage in memory, LazyMemmapStorage on disk)")
         self.L, self.capacity = int(L), int(capacity)
         self.observation_key, self.action_key, self.history_key = observation_key, action_key, history_key
+        self.n_actions = None if n_actions is None else n_discrete_actions(n_actions)
+        self.storage, self.device, self.transform = storage, torch.device(device or "cpu"), transform
         self.buffers: dict[int, TensorDictReplayBuffer] = {}
         self.taus: dict[int, TensorDictBase] = {}
         self.calibration: dict[int, list[TensorDictBase]] = {}
@@ -119,8 +154,13 @@ class RoundBuffers:
     def _new_buffer(self) -> TensorDictReplayBuffer:
         # strict_length: a trajectory shorter than L would give a short slice and break the [n, L] reshape; the
         # strict sampler leaves it out. With every trajectory at least L long both draw the same windows
-        return TensorDictReplayBuffer(storage=LazyTensorStorage(self.capacity),
-                                      sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=True))
+        return TensorDictReplayBuffer(storage=STORAGES[self.storage](self.capacity, device=self.device),
+                                      sampler=SliceSampler(slice_len=self.L, traj_key="traj", strict_length=True),
+                                      transform=None if self.transform is None else copy.deepcopy(self.transform))
+
+    def __len__(self) -> int:
+        """Transitions stored, over every round (``len(buffers.buffers[r])``: one round's)."""
+        return sum(len(buffer) for buffer in self.buffers.values())
 
     @property
     def keys(self) -> tuple[NestedKey, ...]:
@@ -137,51 +177,68 @@ class RoundBuffers:
         """Rounds that hold data, in order."""
         return sorted(self.buffers)
 
-    def add(self, round_: int, trajectory: TensorDictBase, tau: bool = False, calibration: bool = False) -> None:
-        """Store a ``[T]`` trajectory (from a ``HistoryWindow`` env) in round ``round_``'s buffer.
+    def add(self, round_: int, trajectory: TensorDictBase, tau: bool = False, calibration: bool = False, *,
+            allow_nonfinite: bool = False) -> None:
+        """Store the episodes of ``trajectory`` (from a ``HistoryWindow`` env) in round ``round_``'s buffer.
 
-        With ``tau=True`` it is also the round's adaptation trajectory ``tau_t``; with ``calibration=True``
-        one of the round's user's calibration drives (:meth:`user_trajectories`). Actions may be categorical or
-        one-hot (stored as indices); entries other than :attr:`keys` (and the road) are not stored. Everything is
-        checked before anything is written: a refused trajectory (``TypeError``, ``KeyError`` or ``ValueError``:
-        a wrong shape, missing keys, another layout than the stored data's, no room left) changes nothing.
+        ``trajectory`` is a ``[T]`` rollout or a ``[B, T]`` batch (B trajectories); it is split into episodes at a
+        collector's ``("collector", "traj_ids")`` and after every ``("next", "done")`` step, each stored as its own
+        trajectory (no sampled window crosses a reset). With ``tau=True`` it is also the round's adaptation
+        trajectory ``tau_t`` (it must then be one episode); with ``calibration=True`` each episode is one of the
+        round's user's calibration drives (:meth:`user_trajectories`). Actions may be categorical or one-hot (stored
+        as indices); entries other than :attr:`keys` (and the road) are not stored.
+
+        Everything is checked before anything is written: a refused add (``TypeError``, ``KeyError`` or
+        ``ValueError``, naming the entry and the fix: missing keys, another shape or layout than the stored data's, a
+        dtype the stored one cannot hold exactly, NaN or infinite values unless ``allow_nonfinite=True``, an action
+        out of range, no room left) changes nothing.
         """
         round_ = _round_id(round_)
-        data = self._checked(trajectory)
-        T = data.shape[0]
+        if not isinstance(trajectory, TensorDictBase):
+            raise TypeError(f"a trajectory is a [T] TensorDict (or a [B, T] batch), got {type(trajectory).__name__}")
+        episodes = split_episodes(trajectory)
+        if tau and len(episodes) > 1:
+            raise ValueError(f"tau=True needs one episode, but this add holds {len(episodes)} (split at "
+                             "('next', 'done'), ('collector', 'traj_ids') or a [B, T] batch): add the episode you "
+                             "mean as tau on its own, and the others without tau")
+        datas = [self._checked(episode, allow_nonfinite) for episode in episodes]
+        total = sum(d.shape[0] for d in datas)
         stored = len(self.buffers[round_]) if round_ in self.buffers else 0
-        if stored + T > self.capacity:
-            raise ValueError(f"round {round_} holds {stored} of its capacity={self.capacity} transitions: no room for a "
-                             f"trajectory of {T} steps (RoundBuffers refuses rather than overwriting older "
-                             "trajectories; build it with a larger capacity)")
-        data.set("round", torch.full((T,), round_, dtype=torch.long))
-        data.set("traj", torch.full((T,), self.n_traj, dtype=torch.long))
-        kept = None
-        if tau or calibration:
-            kept = data.clone(False)
-            for key in SENSING_KEYS:  # what happened during each step: the "next" entries (as the env writes them)
-                if ("next", key) in trajectory.keys(True):
-                    kept["next", key] = trajectory["next", key].clone()
+        if stored + total > self.capacity:
+            raise ValueError(f"round {round_} holds {stored} of its capacity={self.capacity} transitions: no room for "
+                             f"{total} more (RoundBuffers refuses rather than overwriting older trajectories; build it "
+                             "with a larger capacity)")
+        kept = []
+        for k, (episode, data) in enumerate(zip(episodes, datas, strict=True)):
+            T = data.shape[0]
+            data.set("round", torch.full((T,), round_, dtype=torch.long, device=self.device))
+            data.set("traj", torch.full((T,), self.n_traj + k, dtype=torch.long, device=self.device))
+            if tau or calibration:
+                kept.append(data.clone(False))
+                for key in SENSING_KEYS:  # what happened during each step: the "next" entries (as the env writes them)
+                    if ("next", key) in episode.keys(True):
+                        kept[-1]["next", key] = episode["next", key].clone()
         # checked: from here on nothing raises on the data, and the storage, ids and lengths move together
         buffer = self.buffers[round_] if round_ in self.buffers else self._new_buffer()
         with _quiet_storage():
-            buffer.extend(data)
+            buffer.extend(datas[0] if len(datas) == 1 else torch.cat(datas))
         self.buffers[round_] = buffer
-        self.n_traj += 1
-        self.lengths.setdefault(round_, []).append(T)
-        if T < self.L:
-            log.warning("round %d: a trajectory of %d steps is shorter than L=%d; sample() skips it (%d such in the "
-                        "round)", round_, T, self.L, self.short[round_])
+        self.n_traj += len(datas)
+        self.lengths.setdefault(round_, []).extend(d.shape[0] for d in datas)
+        short = [d.shape[0] for d in datas if d.shape[0] < self.L]
+        if short:
+            log.warning("round %d: %s of %s steps shorter than L=%d; sample() skips %s (%d such in the round)", round_,
+                        "a trajectory" if len(short) == 1 else f"{len(short)} trajectories", short if len(short) > 1
+                        else short[0], self.L, "it" if len(short) == 1 else "them", self.short[round_])
         if tau:
-            self.taus[round_] = kept
+            self.taus[round_] = kept[0]
         if calibration:
-            self.calibration.setdefault(round_, []).append(kept)
+            self.calibration.setdefault(round_, []).extend(kept)
 
-    def _checked(self, trajectory: TensorDictBase) -> TensorDictBase:
-        """The entries of ``trajectory`` that are stored (actions as indices), checked against the stored data's
-        layout; raises for anything :meth:`add` would refuse, and writes nothing."""
-        if not isinstance(trajectory, TensorDictBase):
-            raise TypeError(f"a trajectory is a [T] TensorDict, got {type(trajectory).__name__}")
+    def _checked(self, trajectory: TensorDictBase, allow_nonfinite: bool = False) -> TensorDictBase:
+        """The entries of one episode ``trajectory`` that are stored (actions as indices, dtypes as stored, on the
+        buffers' device), checked against the stored data's layout; raises for anything :meth:`add` would refuse,
+        and writes nothing."""
         if trajectory.ndim != 1 or trajectory.shape[0] == 0:
             raise ValueError(f"a trajectory must be a non-empty [T] tensordict, got {tuple(trajectory.shape)}")
         present = trajectory.keys(True)
@@ -196,10 +253,6 @@ class RoundBuffers:
         if road is not None:
             data["road"] = road.clone()
         obs_key, next_key = self.observation_key, keys[-1]
-        action = action_indices(data[self.action_key], data.shape).long()  # one-hot (TorchRL's OneHot spec): indices
-        if bool((action < 0).any()):
-            raise ValueError(f"actions must be indices >= 0 (or one-hot), got the minimum {int(action.min())}")
-        data[self.action_key] = action
         observation, history = data[obs_key], data[self.history_key]
         if observation.ndim != 2 or data[next_key].shape != observation.shape:
             raise ValueError(f"{obs_key!r} and {next_key!r} must both be [T, S], got "
@@ -207,8 +260,24 @@ class RoundBuffers:
         if history.ndim != 3 or history.shape[-1] <= observation.shape[-1]:
             raise ValueError(f"{self.history_key!r} must be [T, K, S + A] (a HistoryWindow's, S={observation.shape[-1]}), "
                              f"got {tuple(history.shape)}")
+        width = history.shape[-1] - observation.shape[-1]
+        n_actions = self.n_actions if self.n_actions is not None else width
+        action = action_indices(data[self.action_key], data.shape, n_actions).long()  # one-hot: indices
+        check_actions(action, n_actions, f"RoundBuffers(n_actions={n_actions})" if self.n_actions is not None
+                      else f"the {self.history_key!r} window's action width {width}")
+        data[self.action_key] = action
         self._check_layout(data)
-        return data
+        cast_losslessly(data, self._stored_dtypes())
+        if not allow_nonfinite:
+            check_finite(data)
+        return _on(data, self.device)
+
+    def _stored_dtypes(self) -> dict[NestedKey, torch.dtype]:
+        """Each stored entry's dtype (the first add's: every round shares one layout); empty before any add."""
+        if not self.buffers:
+            return {}
+        stored = self.data(self.rounds[0])[:1]
+        return {key: stored.get(key).dtype for key in stored.keys(True, True) if key not in ("round", "traj", "index")}
 
     def _check_layout(self, data: TensorDictBase) -> None:
         """``ValueError`` unless ``data`` has the entries and per-step shapes of the data already stored (every
@@ -293,19 +362,23 @@ class RoundBuffers:
                 "keys": {"observation_key": self.observation_key, "action_key": self.action_key,
                          "history_key": self.history_key},
                 "taus": sorted(self.taus), "calibration": {str(r): len(v) for r, v in self.calibration.items()},
-                "generator": self.generator.get_state().tolist()}
+                "generator": self.generator.get_state().tolist(), "n_actions": self.n_actions,
+                "storage": self.storage, "device": str(self.device)}
         (folder / "manifest.json").write_text(json.dumps(meta))
 
     @classmethod
-    def load(cls, folder: str | Path) -> RoundBuffers:
-        """Read buffers written by :meth:`save`."""
+    def load(cls, folder: str | Path, *, device: str | torch.device | None = None,
+             transform: Transform | None = None) -> RoundBuffers:
+        """Read buffers written by :meth:`save` (on their saved device and storage, or on ``device``)."""
         folder = Path(folder)
         manifest = folder / "manifest.json"
         if not manifest.is_file():
             raise FileNotFoundError(f"no replay-buffer manifest in {str(folder)!r}")
         meta = json.loads(manifest.read_text())
         keys = {name: key if isinstance(key, str) else tuple(key) for name, key in meta.get("keys", {}).items()}
-        out = cls(L=meta["L"], capacity=meta["capacity"], **keys)  # keys: absent in older checkpoints (the defaults)
+        # keys, n_actions, storage, device: absent in older checkpoints (the defaults)
+        out = cls(L=meta["L"], capacity=meta["capacity"], **keys, n_actions=meta.get("n_actions"),
+                  storage=meta.get("storage", "memory"), device=device or meta.get("device"), transform=transform)
         out.n_traj = meta["n_traj"]
         out.generator.set_state(torch.tensor(meta["generator"], dtype=torch.uint8))
         for r in meta["rounds"]:
@@ -316,8 +389,8 @@ class RoundBuffers:
             # the lengths from the stored trajectory ids (not in the manifest: older checkpoints lack them)
             out.lengths[int(r)] = torch.unique_consecutive(out.data(int(r))["traj"], return_counts=True)[1].tolist()
         for r in meta["taus"]:
-            out.taus[int(r)] = TensorDict.load_memmap(folder / f"tau_{r}").clone()
+            out.taus[int(r)] = _on(TensorDict.load_memmap(folder / f"tau_{r}").clone(), out.device)
         for r, n in meta.get("calibration", {}).items():  # absent in checkpoints written before calibration
-            out.calibration[int(r)] = [TensorDict.load_memmap(folder / f"calibration_{r}_{k}").clone()
+            out.calibration[int(r)] = [_on(TensorDict.load_memmap(folder / f"calibration_{r}_{k}").clone(), out.device)
                                        for k in range(n)]
         return out

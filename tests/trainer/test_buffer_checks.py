@@ -71,7 +71,7 @@ REFUSED = {
                                                     ("next", "observation"): torch.zeros(8, S + 1)}, [8]),
                            ValueError, "observation"),
     "a missing key": (0, lambda: trajectory(8).exclude("history"), KeyError, "history"),
-    "a [T, 2] trajectory": (0, lambda: torch.stack([trajectory(5), trajectory(5)], 1), ValueError, r"\[T\]"),
+    "a single step": (0, lambda: trajectory(5)[0], ValueError, r"\[T\]"),
     "an empty trajectory": (0, lambda: trajectory(3)[:0], ValueError, "non-empty"),
     "a plain dict": (0, lambda: dict(trajectory(5).items()), TypeError, "TensorDict"),
     "a malformed one-hot": (0, _malformed_one_hot, ValueError, "one-hot"),
