@@ -111,7 +111,7 @@ def test_simulated_drivers_are_unchanged_by_the_extension():
     assert _simulated(hooks=True) == plain
     # the figure of `pernav drive --town Town1 --policy explore --user user3 --routes 0` before the extension
     assert plain["completed"] and plain["time"] == 179.0
-    assert plain["tracking_cost"] == pytest.approx(349.1481049516626, abs=1e-9)
+    assert plain["tracking_cost"] == pytest.approx(349.1481049516626, rel=1e-6)  # another CPU: 349.14810494758467
 
 
 def test_recorded_drive_trains_a_model(bot_drive, tmp_path):
