@@ -134,7 +134,7 @@ class Speaker:
     def _open(self) -> None:
         os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         try:
-            import pygame  # here, not at the top: importing this module must not load pygame
+            import pygame  # lazy: importing this module must not load pygame
         except ImportError as exc:
             self.reason = f"pygame is not installed ({exc})"
             return
@@ -170,7 +170,7 @@ class Speaker:
         try:
             sound = self._sounds.get(path)
             if sound is None:
-                import pygame
+                import pygame  # lazy: importing this module must not load pygame
 
                 sound = self._sounds[path] = pygame.mixer.Sound(str(path))
             self._channel.play(sound)
@@ -190,7 +190,7 @@ class Speaker:
         if self._owns_mixer:
             self._owns_mixer = False
             try:
-                import pygame
+                import pygame  # lazy: importing this module must not load pygame
 
                 pygame.mixer.quit()
             except Exception:  # closing must not fail either

@@ -8,7 +8,8 @@
   bonnet at the bottom.
 
 ``Fog`` limits what any view shows with distance (``--visual foggy``). A view draws a :class:`Frame` (the cars where
-they are this instant, the route ahead), so it can be used without a running drive.
+they are this instant, the route ahead), so it can be used without a running drive (both, and the :class:`Camera`
+every view is, live in :mod:`pernav.play.camera_base`; they are named here too).
 
 Example (off screen):
     >>> import numpy as np
@@ -27,98 +28,19 @@ Example (off screen):
 from __future__ import annotations
 
 import math
-from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pernav.play.camera_base import Camera, CarShape, Fog, Frame
 from pernav.play.scene import PALETTE, TownScene, marking_quads, paint_plan, town_scene
-from pernav.world.drivers import Context, DriverProfile, resolve
+from pernav.play.seat import DriverCamera
 from pernav.world.towns import Town
 
 __all__ = ["CAMERAS", "Camera", "CarShape", "ChaseCamera", "Fog", "Frame", "PlanCamera", "make_camera"]
 
 CAMERAS = ("top", "third_person", "first_person")  # the values of Context.camera (pernav.world.drivers)
 CHASE_ANCHOR = 0.72  # the chase view's car sits this far down the screen: the camera is behind it
-
-
-@dataclass(frozen=True)
-class CarShape:
-    """A car as a view draws it: centre (m), heading (rad, y down), length and width (m), colour, and whether it is
-    the person's own car."""
-
-    position: np.ndarray
-    heading: float
-    length: float
-    width: float
-    colour: tuple[int, int, int]
-    ego: bool = False
-
-
-@dataclass
-class Frame:
-    """What a view shows at one instant: the person's car (position, heading), every car, the route's waypoints
-    ahead of the car (``[n, 2]``, in order) and the destination."""
-
-    ego: np.ndarray
-    heading: float
-    cars: list[CarShape] = field(default_factory=list)
-    route: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    destination: np.ndarray | None = None
-
-    @property
-    def forward(self) -> np.ndarray:
-        return np.array([math.cos(self.heading), math.sin(self.heading)])
-
-    @property
-    def right(self) -> np.ndarray:  # y down: the right of heading east is south
-        return np.array([-math.sin(self.heading), math.cos(self.heading)])
-
-
-@dataclass(frozen=True)
-class Fog:
-    """Visibility with distance: clear up to ``clear`` metres, then thickening to the fog colour at ``opaque``
-    metres and beyond.
-
-    >>> fog = Fog(clear=10.0, opaque=30.0)
-    >>> fog.alpha(np.array([5.0, 20.0, 50.0])).tolist()
-    [0.0, 127.5, 255.0]
-    """
-
-    clear: float
-    opaque: float
-
-    def alpha(self, distance: np.ndarray) -> np.ndarray:
-        """Opacity (0 clear .. 255 fog colour) at ``distance`` metres."""
-        return 255.0 * np.clip((distance - self.clear) / (self.opaque - self.clear), 0.0, 1.0)
-
-    @staticmethod
-    def for_visual(visual: str, camera: str) -> Fog | None:
-        """The fog of a context's ``visual`` condition seen through ``camera`` (None: clear): opaque at the sight
-        distance the simulated driver has in that context (:func:`pernav.world.drivers.resolve`, 30-49 m in fog),
-        thinning to clear at 40 % of it."""
-        if visual != "foggy":
-            return None
-        sight = resolve(DriverProfile(), Context(camera=camera, visual=visual)).sight_distance
-        return Fog(clear=0.4 * sight, opaque=sight)
-
-
-class Camera(ABC):
-    """A view of a town on a surface of ``size`` pixels."""
-
-    name: str
-
-    def __init__(self, scene: TownScene, size: tuple[int, int]) -> None:
-        self.scene, self.size = scene, size
-
-    @abstractmethod
-    def draw(self, out: Any, frame: Frame, fog: Fog | None = None) -> None:
-        """Draw ``frame`` onto the pygame surface ``out`` (every pixel), fogged by ``fog``."""
-
-    @abstractmethod
-    def basis(self, frame: Frame) -> np.ndarray:
-        """``[2, 2]``: a world direction times this is its direction on the screen (x right, y down)."""
 
 
 # ----- the map views (top, third_person) ------------------------------------------------------------------
@@ -130,7 +52,7 @@ class PlanCamera(Camera):
     anchor = (0.5, 0.5)  # where the car is on the screen (fractions of the width and height)
 
     def __init__(self, scene: TownScene, size: tuple[int, int], scaling: float = 6.0) -> None:
-        import pygame
+        import pygame  # lazy: pygame is loaded when a view is made, not when the module is imported
 
         super().__init__(scene, size)
         self.pygame, self.scaling = pygame, scaling
@@ -254,8 +176,6 @@ class ChaseCamera(PlanCamera):
 
 def make_camera(name: str, town: Town, size: tuple[int, int], **options: Any) -> Camera:
     """The view ``name`` (one of :data:`CAMERAS`) of ``town`` on a surface of ``size`` pixels."""
-    from pernav.play.seat import DriverCamera  # it builds on this module's Camera
-
     kinds: dict[str, type[Camera]] = {"top": PlanCamera, "third_person": ChaseCamera, "first_person": DriverCamera}
     if name not in kinds:
         raise ValueError(f"unknown camera {name!r}; choose one of {', '.join(CAMERAS)}")

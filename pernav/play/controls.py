@@ -126,7 +126,7 @@ class _Controls(SessionKeys):
 
     def poll(self) -> None:
         """Handle the window's pending events (see :class:`SessionKeys`); called once per drawn frame."""
-        import pygame
+        import pygame  # lazy: pygame is loaded by controls in use, not when the module is imported
 
         if not pygame.display.get_init():
             return
@@ -152,7 +152,7 @@ class KeyboardControls(_Controls):
     """
 
     def __init__(self) -> None:
-        import pygame
+        import pygame  # lazy: pygame is loaded by controls in use, not when the module is imported
 
         if not pygame.display.get_init() or pygame.display.get_surface() is None:
             raise ControlsError("keyboard controls need the game window: open it first (or use --headless)")
@@ -216,7 +216,7 @@ class JoystickControls(_Controls):
                  brake_axis: int | None = None, pedal_rest: float = -1.0, dead_zone: float = 0.05,
                  invert: Collection[str] = (), stick: Any = None) -> None:
         if stick is None:
-            import pygame
+            import pygame  # lazy: pygame is loaded by controls in use, not when the module is imported
 
             pygame.joystick.init()
             count = pygame.joystick.get_count()

@@ -1,10 +1,12 @@
-"""A lab study's log of every drive, at the world's frame rate, and one tidy CSV per session.
+"""A drive's record: its result (:class:`PlayResult`), a lab study's log of it at the world's frame rate, and one
+tidy CSV per session.
 
-:class:`PlaySession` fills a :class:`DriveLog` while it drives (one record per world frame, one per decision step,
-one per prompt played) and hands it back as ``PlayResult.log``; :func:`drive_rows` turns a drive into rows of one
-tidy table (:data:`COLUMNS`), :func:`answer_rows` a questionnaire's answers, and :func:`append_csv` appends rows to a
-session's CSV, which ``pandas.read_csv(path)`` reads without arguments. Booleans are written 1/0 and a field that
-does not apply to a row is left empty, so pandas reads numbers (float64 where a column has empty cells) and text.
+:class:`~pernav.play.loop.PlaySession` fills a :class:`DriveLog` while it drives (one record per world frame, one per
+decision step, one per prompt played) and hands it back in its :class:`PlayResult` (``result.log``);
+:func:`drive_rows` turns a drive into rows of one tidy table (:data:`COLUMNS`), :func:`answer_rows` a
+questionnaire's answers, and :func:`append_csv` appends rows to a session's CSV, which ``pandas.read_csv(path)``
+reads without arguments. Booleans are written 1/0 and a field that does not apply to a row is left empty, so pandas
+reads numbers (float64 where a column has empty cells) and text.
 
 Columns (units in brackets):
 
@@ -35,8 +37,8 @@ Columns (units in brackets):
 - answer: ``question``, ``answer``.
 
 Example (the scripted bot drives three steps):
-    >>> from pernav.play.loop import PlaySession
-    >>> result = PlaySession("Town1", 0, n_traffic=2).run(max_steps=3)
+    >>> from pernav.play.loop import PlayOptions, PlaySession
+    >>> result = PlaySession("Town1", 0, options=PlayOptions(n_traffic=2)).run(max_steps=3)
     >>> rows = drive_rows(result, {"session": "s1", "participant": "p01", "drive": 1})
     >>> [sum(r["row"] == kind for r in rows) for kind in ("frame", "prompt", "drive")]
     [30, 3, 1]
@@ -48,6 +50,7 @@ import csv
 import io
 import math
 import os
+import statistics
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
@@ -58,10 +61,10 @@ from pernav.env.navigation import FRAME_KEYS
 from pernav.world.constants import ACTION_NAMES, audio_duration
 from pernav.world.controls import ControlInput
 
-if TYPE_CHECKING:
-    from pernav.play.loop import PlayResult
+if TYPE_CHECKING:  # a drive's log and rows need no torch (a lab's session file is checked without it)
+    from tensordict import TensorDictBase
 
-__all__ = ["COLUMNS", "IDENTITY", "DriveLog", "InputTap", "answer_rows", "append_csv", "drive_rows"]
+__all__ = ["COLUMNS", "IDENTITY", "DriveLog", "InputTap", "PlayResult", "answer_rows", "append_csv", "drive_rows"]
 
 IDENTITY = ("session", "participant", "block", "drive", "attempt", "practice",
             "town", "route", "vehicle", "visual", "camera", "equipment", "policy", "user")
@@ -162,6 +165,29 @@ class DriveLog:
         self.frames.append(_Frame(time.time(), time.perf_counter() - self.clock, world.time, tap.keys, tap.inputs,
                                   tap.axes, float(ego.position[0]), float(ego.position[1]), float(ego.heading),
                                   nav.last_frame, events.vehicle_collisions, events.edge_strikes))
+
+
+@dataclass
+class PlayResult:
+    """A finished (or quit) drive: its ``[T]`` trajectory (``None`` if quit before the first step), its metrics and
+    the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing);
+    ``ctrl_c``: Ctrl-C was pressed (the drive is kept, marked interrupted if it was cut short; the caller stops);
+    ``log``: every world frame, decision and prompt as driven, a quit drive's last part second too (its rows of a
+    session's CSV: :func:`drive_rows`)."""
+
+    trajectory: TensorDictBase | None
+    metrics: dict[str, Any]
+    frame_ms: list[float] = field(default_factory=list)
+    ctrl_c: bool = False
+    log: DriveLog | None = None
+
+    def frame_stats(self) -> dict[str, float]:
+        """Median and 95th percentile of the frame times (ms)."""
+        if not self.frame_ms:
+            return {"median_ms": math.nan, "p95_ms": math.nan, "frames": 0}
+        ordered = sorted(self.frame_ms)
+        return {"median_ms": round(statistics.median(ordered), 3),
+                "p95_ms": round(ordered[min(int(0.95 * len(ordered)), len(ordered) - 1)], 3), "frames": len(ordered)}
 
 
 def _identity(meta: Mapping[str, Any], defaults: Mapping[str, Any] | None = None) -> dict[str, Any]:

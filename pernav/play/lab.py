@@ -46,6 +46,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from pernav.play.framelog import answer_rows, append_csv, drive_rows
+from pernav.play.options import POLICIES, PlayOptions
+from pernav.play.questionnaire import ask_question
+from pernav.play.screens import FINISHED, STOPPED, show_finished, show_waiting
+from pernav.play.view import PlayView
+from pernav.world.constants import TOWN_NAMES
+from pernav.world.drivers import CONTEXT_CHOICES, named_user
+from pernav.world.towns import get_town
+
 __all__ = ["Block", "Condition", "LabSession", "PlannedDrive", "SessionFileError", "SessionPlan", "block_order",
            "drive_list", "load_plan", "parse_plan", "williams_square"]
 
@@ -53,7 +64,7 @@ SESSION_FIELDS = ("name", "participants", "counterbalance", "seed", "traffic", "
                   "practice", "blocks", "questionnaire")
 CONDITION_FIELDS = ("town", "vehicle", "visual", "camera", "equipment", "policy", "user")
 COUNTERBALANCE = ("latin", "shuffle")
-LAB_POLICIES = ("explore", "oracle")
+LAB_POLICIES = POLICIES  # a condition's policy: one of the rules (explore, or the oracle timed for its user)
 
 
 class SessionFileError(ValueError):
@@ -137,10 +148,6 @@ def _check_fields(where: str, entry: Any, allowed: Sequence[str]) -> Mapping[str
 
 
 def _condition(where: str, fields: Mapping[str, Any], route: Any) -> Condition:
-    from pernav.world.constants import TOWN_NAMES
-    from pernav.world.drivers import CONTEXT_CHOICES, named_user
-    from pernav.world.towns import get_town
-
     town = fields.get("town", "Town1")
     if town not in TOWN_NAMES:
         raise _fail(where, f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
@@ -238,8 +245,6 @@ def parse_plan(data: Any, text: str = "") -> SessionPlan:
 
 def load_plan(path: str | Path) -> SessionPlan:
     """Read and check a session file (YAML)."""
-    import yaml
-
     path = Path(path)
     if not path.is_file():
         raise SessionFileError(f"session file {str(path)!r} does not exist")
@@ -289,7 +294,7 @@ def block_order(plan: SessionPlan, participant: str) -> list[int]:
 def drive_list(plan: SessionPlan, participant: str) -> list[PlannedDrive]:
     """Every drive of ``participant``'s session in order: the practice drive (number 0), then the blocks'.
     The world's seed depends on the route only, so each route meets the same traffic in every block."""
-    from pernav.trainer.collect import derive_seed
+    from pernav.trainer.collect import derive_seed  # lazy: it loads torch and torchrl; a session file is checked without
 
     drives = []
     if plan.practice is not None:
@@ -446,9 +451,6 @@ class LabSession:
     def _open_window(self) -> None:
         if not self.window:
             return
-        from pernav.play.view import PlayView
-        from pernav.world.towns import get_town
-
         first = next(d for _, d in self.items if isinstance(d, PlannedDrive))
         self.view = PlayView(get_town(first.condition.town), window=True)
 
@@ -463,7 +465,7 @@ class LabSession:
 
     def _drive(self, drive: PlannedDrive) -> tuple[bool, bool]:
         """One drive, recorded; returns (stopped, ctrl_c)."""
-        from pernav.play.framelog import append_csv, drive_rows
+        # lazy: the play loop and the drives' files load torch and torchrl; a session file is checked without them
         from pernav.play.loop import PlaySession
         from pernav.trainer.drives import save_drive
 
@@ -471,14 +473,13 @@ class LabSession:
         title = self._title(drive)
         self.announce(title)
         if self.view is not None:
-            from pernav.play.screens import show_waiting
-
             show_waiting(self.view, f"{title} (a few seconds)", None, heading="Preparing the next drive")
         started = _now()
-        session = PlaySession(c.town, c.route, c.user, context=dict(c.context), policy=c.policy, seed=drive.seed,
-                              n_traffic=self.plan.traffic, window=self.window, speaker=self.speaker,
+        options = PlayOptions(seed=drive.seed, n_traffic=self.plan.traffic, window=self.window,
                               countdown=self.plan.countdown, title=title, hide_cost=self.plan.hide_cost,
-                              notice=self.notice, view=self.view, progress=title.split(":")[0])
+                              notice=self.notice, progress=title.split(":")[0])
+        session = PlaySession(c.town, c.route, c.user, dict(c.context), c.policy, speaker=self.speaker, view=self.view,
+                              options=options)
         if self.controls is not None:
             session.controls = self._make_controls()
         try:
@@ -504,8 +505,6 @@ class LabSession:
 
     def _ask(self, key: str, block: str) -> None:
         """The questionnaire after ``block``: each question, then the command; the answers as CSV rows."""
-        from pernav.play.framelog import answer_rows, append_csv
-
         answers: dict[str, Any] = {}
         for question in self.plan.questions:
             answers[question.id] = self._answer(question, block)
@@ -519,8 +518,6 @@ class LabSession:
         if self.answer is not None:
             return self.answer(question, block)
         if self.view is not None:
-            from pernav.play.questionnaire import ask_question
-
             return ask_question(self.view, question.text, question.scale, title=f"After block {block!r}")
         while True:  # headless without a function: the terminal asks
             reply = input(f"{question.text} " + (f"[{question.scale[0]}-{question.scale[1]}] " if question.scale
@@ -556,8 +553,6 @@ class LabSession:
     def _show_end(self, result: LabResult) -> None:
         if self.view is None:
             return
-        from pernav.play.screens import FINISHED, STOPPED, show_finished
-
         if not result.ctrl_c:  # after Ctrl-C the person at the terminal wants out
             show_finished(self.view, ["Please tell the experimenter."], controls=self._make_controls(),
                           heading=FINISHED if result.finished else STOPPED)

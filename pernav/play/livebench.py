@@ -2,9 +2,9 @@
 
 The off-screen benchmark (:func:`pernav.bench.bench_play`) draws as fast as it goes; a person's drive also shows
 each picture in a real window, sleeps until each picture's due time and handles the window's events. Here each view
-is driven by the scripted bot in a window (``PlaySession(window=True, realtime=True, ready=False)``) for a fixed
+is driven by the scripted bot in a window (``PlayOptions(window=True, realtime=True, ready=False)``) for a fixed
 number of world frames, and per world frame two figures are kept: its compute and drawing time
-(:attr:`~pernav.play.loop.PlayResult.frame_ms`), and how late the loop came back to the world after the frame's
+(:attr:`~pernav.play.framelog.PlayResult.frame_ms`), and how late the loop came back to the world after the frame's
 last picture, against the frame's due time on the clock (``t0 + frame x dt``: the sleep's overshoot, and a frame
 whose work ran past its due time). The window is the X11 or Wayland display where ``DISPLAY`` or ``WAYLAND_DISPLAY``
 is set (Xvfb on a CI machine), else SDL's dummy driver, which presents nothing: the result says so.
@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from pernav.play.controls import ScriptedControls
+from pernav.play.loop import PlayOptions, PlaySession
 
 __all__ = ["LIVE_TARGET_MS", "bench_live", "live_view"]
 
@@ -70,13 +71,11 @@ def live_view(camera: str, visual: str = "normal", steps: int = 30, town: str = 
     """Drive ``steps`` decisions (``steps`` x the env's frequency world frames) of ``route`` in one view, in a
     window paced to real time; returns the frame times and the lateness (ms), the pictures skipped as late, the
     stalls (frames more than :data:`STALL_S` behind) and the SDL driver."""
-    from pernav.play.loop import PlaySession
-
     bot = _WindowBot()
     with _live_display():
-        session = PlaySession(town, route, n_traffic=n_traffic, controls=bot, window=True, realtime=True, ready=False,
-                              screenshot=screenshot, screenshot_at=13.0,
-                              context={"camera": camera, "visual": visual})
+        options = PlayOptions(n_traffic=n_traffic, window=True, realtime=True, ready=False, screenshot=screenshot,
+                              screenshot_at=13.0)
+        session = PlaySession(town, route, context={"camera": camera, "visual": visual}, controls=bot, options=options)
         bot.session = session
         driver = session.view.pygame.display.get_driver()
         pictures = [0]

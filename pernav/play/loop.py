@@ -22,10 +22,12 @@ pacing, and a countdown follows a pause. Ctrl-C stops the drive like a quit and 
 
 Policies: ``"explore"``, ``"oracle"`` (the rule timed for the chosen user's profile) or any callable that takes the
 step's TensorDict (observation, history, route_ahead, action_mask, explore_future, ...) and returns it with an
-``"action"`` (e.g. a study's MPC policy module; in the env's action space: 7 instructions, or 21 with playback).
+``"action"`` (e.g. a study's MPC policy module, :meth:`pernav.study.finished.FinishedStudy.policy`; in the env's
+action space: the instructions, or each instruction at each playback speed). Everything but the world, the people
+and the objects of a drive is one :class:`~pernav.play.options.PlayOptions`.
 
 Example (headless: the scripted bot drives, nothing is drawn):
-    >>> result = PlaySession("Town1", 0, n_traffic=2).run()
+    >>> result = PlaySession("Town1", 0, options=PlayOptions(n_traffic=2)).run()
     >>> result.metrics["completed"], result.trajectory["history"].shape[1:]
     (True, torch.Size([5, 21]))
 """
@@ -33,10 +35,9 @@ Example (headless: the scripted bot drives, nothing is drawn):
 from __future__ import annotations
 
 import math
-import statistics
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -45,64 +46,36 @@ import torch
 from tensordict import TensorDictBase
 
 from pernav.env.navigation import load_user
-from pernav.play.controls import ScriptedControls
-from pernav.play.framelog import DriveLog, InputTap
+from pernav.env.torchrl_env import explore_module, navigation_of, oracle_module
+from pernav.play.audio import Speaker
+from pernav.play.controls import AxisCheck, ScriptedControls
+from pernav.play.framelog import DriveLog, InputTap, PlayResult
 from pernav.play.handling import apply_handling
-from pernav.world.constants import ACTION_NAMES, PLAYBACK, TOWN_NAMES, audio_duration
+from pernav.play.options import PLAY_POLICIES, POLICIES, PlayError, PlayOptions, check_drive
+from pernav.play.screens import result_lines, show_axes, show_panel
+from pernav.play.view import PlayView
+from pernav.trainer.collect import episode_metrics, history_env
+from pernav.world.constants import ACTION_NAMES, N_PLAYBACKS, PLAYBACK, audio_duration
 from pernav.world.drivers import CONTEXT_CHOICES, ProfileError
-from pernav.world.towns import TownError, get_town
 
-__all__ = ["POLICIES", "PlayError", "PlayQuit", "PlayResult", "PlaySession", "make_speaker", "open_speaker"]
+__all__ = ["PLAY_POLICIES", "POLICIES", "PlayError", "PlayOptions", "PlayQuit", "PlayResult", "PlaySession",
+           "make_speaker", "open_speaker"]
 
-POLICIES = ("explore", "oracle")
 MAX_STEPS = 2000  # the env's time limit ends a drive far earlier; this only bounds a runaway loop
 SCREEN_HZ = 30  # pictures per second of the screens around a drive (ready, pause, countdown)
-
-
-class PlayError(ValueError):
-    """Bad play settings (reported by ``pernav play`` in one line)."""
 
 
 class PlayQuit(Exception):
     """The person quit (Esc then Y, Esc held, or the window's close button then Y)."""
 
 
-@dataclass
-class PlayResult:
-    """A finished (or quit) drive: its ``[T]`` trajectory (``None`` if quit before the first step), its metrics and
-    the compute time of every world frame (ms: the world, the step's bookkeeping at a second's start, drawing);
-    ``ctrl_c``: Ctrl-C was pressed (the drive is kept, marked interrupted if it was cut short; the caller stops);
-    ``log``: every world frame, decision and prompt as driven, a quit drive's last part second too
-    (:mod:`pernav.play.framelog`: its rows of a session's CSV)."""
-
-    trajectory: TensorDictBase | None
-    metrics: dict[str, Any]
-    frame_ms: list[float] = field(default_factory=list)
-    ctrl_c: bool = False
-    log: DriveLog | None = None
-
-    def frame_stats(self) -> dict[str, float]:
-        """Median and 95th percentile of the frame times (ms)."""
-        if not self.frame_ms:
-            return {"median_ms": math.nan, "p95_ms": math.nan, "frames": 0}
-        ordered = sorted(self.frame_ms)
-        return {"median_ms": round(statistics.median(ordered), 3),
-                "p95_ms": round(ordered[min(int(0.95 * len(ordered)), len(ordered) - 1)], 3), "frames": len(ordered)}
-
-
 def open_speaker(audio: bool | None) -> tuple[Any, str | None]:
     """The speaker of the prompts and, when there is no sound although none was refused, why (to tell the person):
     ``(None, None)`` when ``audio`` is False; ``(None, reason)`` when it is None (the default: sound if possible) and
-    no speaker or device is there; with ``audio=True`` a missing one is a :class:`PlayError`. ``pernav.play.audio``
-    is loaded here, so play works (text only) without it."""
+    no speaker or device is there (pygame missing among them); with ``audio=True`` a missing one is a
+    :class:`PlayError`."""
     if audio is False:
         return None, None
-    try:
-        from pernav.play.audio import Speaker
-    except ImportError as exc:
-        if audio:
-            raise PlayError(f"no audio: the speaker is not available ({exc})") from None
-        return None, f"the speaker is not available ({exc})"
     if audio:
         try:
             return Speaker(enabled=True, require=True), None
@@ -125,54 +98,32 @@ def _flag(controls: Any, name: str) -> bool:
 
 
 def _with_playback(module: Callable[[TensorDictBase], TensorDictBase], playback: str) -> Callable:
-    """A rule-based policy of the 21-action env (whose rules speak at normal speed) speaking at ``playback``."""
+    """A rule-based policy of the env with playback actions (whose rules speak at normal speed) speaking at
+    ``playback``."""
     index = PLAYBACK.index(playback)
 
     def policy(td: TensorDictBase) -> TensorDictBase:
         td = module(td)
-        td["action"] = td["action"] // 3 * 3 + index
+        td["action"] = td["action"] // N_PLAYBACKS * N_PLAYBACKS + index
         return td
 
     return policy
-
-
-def _check_drive_arguments(town: str, route: Any, policy: Any, playback: str, seed: int, fps: int,
-                           countdown: float) -> None:
-    """Refuse a drive's bad arguments before anything is built, naming the argument and what is allowed."""
-    if town not in TOWN_NAMES:
-        raise TownError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
-    n_routes = len(get_town(town).routes)
-    if isinstance(route, bool) or not isinstance(route, (int, np.integer)) or not 0 <= route < n_routes:
-        raise TownError(f"route index {route!r} out of range [0, {n_routes - 1}] for {town}")
-    if isinstance(policy, str) and policy not in POLICIES:
-        raise PlayError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)} (or pass a callable)")
-    if playback not in PLAYBACK:
-        raise PlayError(f"unknown playback {playback!r}; choose one of {', '.join(PLAYBACK)}")
-    if seed < 0:
-        raise PlayError(f"seed must be >= 0, got {seed}")
-    if fps < 1:
-        raise PlayError(f"fps must be >= 1, got {fps}")
-    if countdown < 0:
-        raise PlayError(f"countdown must be >= 0 seconds, got {countdown}")
 
 
 class PlaySession:
     """One drive of ``route`` in ``town`` by a person (or the scripted bot) with prompts from ``policy``.
 
     ``user`` (name, mapping or file, with ``context`` overrides) is who the oracle times its prompts for, and the
-    car's vehicle; ``controls`` default to :class:`~pernav.play.controls.ScriptedControls`. ``window``: a pygame
-    window (paced to real time); ``draw``: draw off screen too (a screenshot, a timing); ``realtime`` defaults to
-    ``window``. ``screenshot``: a PNG of the window saved at ``screenshot_at`` seconds of the drive (default: one
-    second after the first prompt is played, or at the end). ``ready`` (default: a window in real time, a person):
-    the screens around the drive (``calibrate``: a wheel's axes first; a ready screen showing ``title`` and
-    ``notice``; a ``countdown`` of seconds; the result at the end); ``hide_cost`` keeps the tracking cost off the
-    screen; ``progress`` ("Drive 2 of 6") stays in a corner during the drive (default: the ``title``). ``view``: an
-    open :class:`~pernav.play.view.PlayView` to draw into instead of a new one (a session of drives keeps one
-    window; :meth:`close` leaves it open). ``K`` (history window, default 5) and ``env_config``
-    (entries of the navigation env's config, e.g. a study's planning context lengths) default to the policy's
-    ``K`` and ``env_config`` attributes where it has them (a study's policy: :func:`pernav.play.personal.study_policy`).
+    car's vehicle; ``controls`` default to :class:`~pernav.play.controls.ScriptedControls`; ``speaker`` says the
+    prompts played (None: text only). ``view``: an open :class:`~pernav.play.view.PlayView` to draw into instead of
+    a new one (a session of drives keeps one window; :meth:`close` leaves it open). ``options``: how the drive runs
+    (:class:`~pernav.play.options.PlayOptions`: the world's seed and traffic, the window, the screens around the
+    drive); its ``K`` and ``env_config`` default to the policy's ``K`` and ``env_config`` attributes where it has
+    them (a study's policy, :meth:`pernav.study.finished.FinishedStudy.policy`). ``settings``: fields of
+    :class:`PlayOptions` by keyword, over ``options`` (the keyword form of the options, for callers that give them
+    one by one).
 
-    >>> session = PlaySession("Town1", 0, policy="oracle", user="user3", n_traffic=2)
+    >>> session = PlaySession("Town1", 0, user="user3", policy="oracle", options=PlayOptions(n_traffic=2))
     >>> result = session.run(max_steps=3)
     >>> result.trajectory.shape, result.metrics["interrupted"]
     (torch.Size([3]), False)
@@ -180,50 +131,32 @@ class PlaySession:
 
     def __init__(self, town: str = "Town1", route: int = 0, user: Any = "user1", context: dict | None = None,
                  policy: str | Callable[[TensorDictBase], TensorDictBase] = "explore", controls: Any = None,
-                 seed: int = 0, n_traffic: int = 8, playback: str = "normal", window: bool = False, draw: bool = False,
-                 speaker: Any = None, realtime: bool | None = None, fps: int = 30, K: int | None = None,
-                 size: tuple[int, int] = (960, 720), screenshot: str | Path | None = None,
-                 screenshot_at: float | None = None, env_config: Mapping[str, Any] | None = None,
-                 ready: bool | None = None, countdown: float = 3.0, title: str | None = None,
-                 notice: str | None = None, hide_cost: bool = False, calibrate: bool = False,
-                 progress: str | None = None, view: Any = None) -> None:
-        from pernav.env.torchrl_env import explore_module, navigation_of, oracle_module
-        from pernav.trainer.collect import history_env
-
-        _check_drive_arguments(town, route, policy, playback, seed, fps, countdown)
-        profile, ctx = load_user(user)
-        ctx_dict = {**(ctx.to_dict() if ctx else {}), **(context or {})}
-        unknown = sorted(set(ctx_dict) - set(CONTEXT_CHOICES))
-        if unknown:
-            raise ProfileError(f"unknown context field {unknown[0]!r}; allowed: {', '.join(CONTEXT_CHOICES)}")
-        self.town, self.route, self.seed, self.playback = town, int(route), int(seed), playback
+                 speaker: Any = None, view: Any = None, options: PlayOptions | None = None, **settings: Any) -> None:
+        options = replace(options if options is not None else PlayOptions(), **settings)
+        check_drive(town, route, policy, options)
+        self.options = options
+        self.town, self.route, self.seed, self.playback = town, int(route), int(options.seed), options.playback
         self.user = user if isinstance(user, str) else "custom"
-        # a learned policy plans on the env its study used (history K, planning context lengths): a policy that
-        # carries them (pernav.play.personal.StudyPolicy) gives the defaults, so its drive needs no settings
-        env_config = getattr(policy, "env_config", None) if env_config is None else env_config
-        K = int(getattr(policy, "K", 5)) if K is None else int(K)
-        config = {"n_traffic": int(n_traffic), "adaptive_speed": playback != "normal", **dict(env_config or {})}
-        options = {"route": int(route), "user": profile, "context": ctx_dict}
-        self.env = history_env(town, options, config=config, seed=int(seed), K=K)
+        self.env = self._make_env(user, context, policy)
         self.nav = navigation_of(self.env)
         if isinstance(policy, str):
             module = explore_module() if policy == "explore" else oracle_module()
-            self.policy = _with_playback(module, playback) if playback != "normal" else module
+            self.policy = _with_playback(module, self.playback) if self.playback != "normal" else module
             self.policy_name = policy
         else:
             self.policy, self.policy_name = policy, getattr(policy, "__name__", type(policy).__name__)
         self.controls = controls if controls is not None else ScriptedControls()
         self.speaker = speaker
-        self.realtime = window if realtime is None else bool(realtime)
-        self.ready = (window and self.realtime) if ready is None else bool(ready)
-        self.countdown, self.title, self.notice = float(countdown), title, notice
-        self.hide_cost, self.calibrate = bool(hide_cost), bool(calibrate)
+        self.realtime = options.window if options.realtime is None else bool(options.realtime)
+        self.ready = (options.window and self.realtime) if options.ready is None else bool(options.ready)
+        self.countdown, self.title, self.notice = float(options.countdown), options.title, options.notice
+        self.hide_cost, self.calibrate = bool(options.hide_cost), bool(options.calibrate)
         self.pauses, self.paused_s = 0, 0.0  # pauses taken, and their wall-clock seconds (the world stood still)
         self.screen: str | None = None  # the screen shown now: calibrate, ready, countdown, pause, confirm, result
         self.calibration: dict[str, bool] | None = None  # per control, whether the calibration saw it move
-        self.screenshot_path = None if screenshot is None else Path(screenshot)
-        self.screenshot_at = screenshot_at
-        self.progress = progress  # the HUD's counter during the drive ("Drive 2 of 6"; else the title)
+        self.screenshot_path = None if options.screenshot is None else Path(options.screenshot)
+        self.screenshot_at = options.screenshot_at
+        self.progress = options.progress  # the HUD's counter during the drive ("Drive 2 of 6"; else the title)
         # the announced manoeuvre of the prompt on screen (see prompt_text); the car's route progress every frame
         self._prompted: tuple[int, str, float] | None = None
         self._announced: tuple[Any, Any] | None = None  # (route, manoeuvre), None: nothing ahead when it played
@@ -232,13 +165,11 @@ class PlaySession:
         self._own_view = view is None  # a view given stays open at close(): its owner (a session of drives) closes it
         if view is not None:
             view.new_drive(self.nav.town)
-        elif window or draw or screenshot is not None:
-            from pernav.play.view import PlayView
-
-            self.view = PlayView(self.nav.town, size=size, window=window)
+        elif options.window or options.draw or options.screenshot is not None:
+            self.view = PlayView(self.nav.town, size=options.size, window=options.window)
         frequency = int(self.nav.config["frequency"])
         self.dt = 1.0 / frequency
-        self.draws_per_frame = max(1, math.ceil(fps / frequency))
+        self.draws_per_frame = max(1, math.ceil(options.fps / frequency))
         self.prompt: tuple[int, str, float] | None = None  # (instruction, playback, world time) last played
         self.distance = math.inf  # m to the next decision manoeuvre (updated every frame)
         self.next_manoeuvre = "none"
@@ -248,6 +179,23 @@ class PlaySession:
         self.shot: Path | None = None
         self.log = DriveLog(frequency)  # the lab's record of the drive (pernav.play.framelog)
         self._tap: InputTap | None = None  # the car's controls in a drive, keeping for the log what it got each frame
+
+    def _make_env(self, user: Any, context: Mapping[str, Any] | None, policy: Any) -> Any:
+        """The study's navigation env of this drive (its history window), for ``user`` with ``context``."""
+        options = self.options
+        profile, ctx = load_user(user)
+        ctx_dict = {**(ctx.to_dict() if ctx else {}), **(context or {})}
+        unknown = sorted(set(ctx_dict) - set(CONTEXT_CHOICES))
+        if unknown:
+            raise ProfileError(f"unknown context field {unknown[0]!r}; allowed: {', '.join(CONTEXT_CHOICES)}")
+        # a learned policy plans on the env its study used (history K, planning context lengths): a policy that
+        # carries them (pernav.study.finished.StudyPolicy) gives the defaults, so its drive needs no settings
+        env_config = getattr(policy, "env_config", None) if options.env_config is None else options.env_config
+        K = int(getattr(policy, "K", 5)) if options.K is None else int(options.K)
+        config = {"n_traffic": int(options.n_traffic), "adaptive_speed": options.playback != "normal",
+                  **dict(env_config or {})}
+        reset = {"route": int(self.route), "user": profile, "context": ctx_dict}
+        return history_env(self.town, reset, config=config, seed=int(options.seed), K=K)
 
     # ----- what the window shows ---------------------------------------------------------------------
     def interpolated(self, alpha: float) -> dict[int, tuple[np.ndarray, float]]:
@@ -363,8 +311,6 @@ class PlaySession:
     def screenshot(self, path: str | Path) -> Path:
         """Draw the world as it is now and save the picture as a PNG (the window's surface)."""
         if self.view is None:
-            from pernav.play.view import PlayView
-
             self.view = PlayView(self.nav.town, window=False)
         self.view.draw(self, 1.0)
         return self.view.screenshot(path)
@@ -372,8 +318,6 @@ class PlaySession:
     # ----- the drive --------------------------------------------------------------------------------
     def run(self, max_steps: int = MAX_STEPS) -> PlayResult:
         """Drive until arrival, the time limit, ``max_steps`` decisions or the person quits."""
-        from pernav.trainer.collect import episode_metrics
-
         td = self.env.reset()
         nav = self.nav
         self._tap = InputTap(self.controls)  # the controls now: a caller may have set them after __init__
@@ -448,8 +392,6 @@ class PlaySession:
     def _panel(self, lines: list[str], big: str | None = None) -> None:
         if self.view is None:
             return
-        from pernav.play.screens import show_panel
-
         self.view.draw(self, 1.0)
         if _flag(self.controls, "confirming"):
             big, lines = "Quit?", ["Y: stop this drive (what was driven is kept)", "any other key: go on driving",
@@ -507,9 +449,6 @@ class PlaySession:
 
     def _calibrate(self) -> None:
         """A wheel's axes, live, until the person's go (skip it at once with Enter)."""
-        from pernav.play.controls import AxisCheck
-        from pernav.play.screens import show_axes
-
         self.screen = "calibrate"
         self._set_caption()
         check = AxisCheck()
@@ -526,8 +465,6 @@ class PlaySession:
 
     def _show_result(self, metrics: Mapping[str, Any]) -> None:
         """The drive's result until the person's go."""
-        from pernav.play.screens import result_lines
-
         self.screen = "result"
         getattr(self.controls, "take_go", lambda: False)()
         lines = [*result_lines(metrics, self.hide_cost), "Press Enter to continue"]

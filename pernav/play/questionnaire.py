@@ -20,6 +20,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from pernav.play.screens import show_panel
+
 __all__ = ["ask_question"]
 
 
@@ -27,9 +29,7 @@ def ask_question(view: Any, text: str, scale: tuple[int, int] | None, title: str
                  events: Callable[[], list[Any]] | None = None) -> int | str:
     """Show ``text`` on ``view`` until the person answers: a whole number on ``scale`` (inclusive), or free text when
     ``scale`` is None. ``events``: where the key events come from (default: the window's)."""
-    import pygame
-
-    from pernav.play.screens import show_panel
+    import pygame  # lazy: pygame is loaded when a question is shown, not when the module is imported
 
     events = events or pygame.event.get
     typed = ""

@@ -158,7 +158,7 @@ def town_scene(town: Town) -> TownScene:
 def paint_plan(surface: Any, scene: TownScene, origin: np.ndarray, scaling: float) -> None:
     """Paint ``scene`` north-up onto ``surface`` (a pygame Surface whose top-left pixel is the world point
     ``origin``, at ``scaling`` pixels per metre): grass, kerbs, asphalt, then the markings."""
-    import pygame
+    import pygame  # lazy: pygame is loaded when a view paints, not when the module is imported
 
     def px(points: np.ndarray) -> list[tuple[float, float]]:
         return [tuple(p) for p in ((points - origin) * scaling).tolist()]

@@ -8,8 +8,8 @@ until the person's go for a caller outside a drive (a session between its drives
 
 Example (no display needed: an off-screen view; the scripted bot is always ready):
     >>> from pernav.play.controls import ScriptedControls
-    >>> from pernav.play.loop import PlaySession
-    >>> session = PlaySession("Town1", 0, n_traffic=0, draw=True)
+    >>> from pernav.play.loop import PlayOptions, PlaySession
+    >>> session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, draw=True))
     >>> show_panel(session.view, ["Drive 1 of 3", "Press Enter when ready"], big="Ready?")
     >>> show_waiting(session.view, "the navigation is learning from your drive", 35.0)
     >>> show_finished(session.view, ["You drove all 3 drives."], controls=ScriptedControls())
@@ -23,6 +23,9 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from functools import cache
 from typing import Any
+
+from pernav.play.view import PlayView
+from pernav.world.towns import get_town
 
 __all__ = ["CLOSING", "FINISHED", "STOPPED", "WAITING", "SessionWindow", "result_lines", "show_axes", "show_finished",
            "show_panel", "show_waiting", "time_left", "wait_for_go"]
@@ -41,7 +44,7 @@ DONE = (90, 220, 90)
 
 @cache
 def _font(size: int) -> Any:
-    import pygame
+    import pygame  # lazy: pygame is loaded when a screen is drawn, not when the module is imported
 
     pygame.font.init()
     return pygame.font.Font(None, size)
@@ -50,7 +53,7 @@ def _font(size: int) -> Any:
 def show_panel(view: Any, lines: Sequence[str], big: str | None = None, title: str | None = None) -> None:
     """Draw a panel with ``big`` (a large word or number), then ``lines``, over what ``view`` shows; ``title`` (e.g.
     "Drive 2 of 7: Town1 route 3") in a band at the top. Presents the picture."""
-    import pygame
+    import pygame  # lazy: pygame is loaded when a screen is drawn, not when the module is imported
 
     surface = view.surface
     w, h = surface.get_size()
@@ -76,7 +79,7 @@ def show_panel(view: Any, lines: Sequence[str], big: str | None = None, title: s
 def show_axes(view: Any, values: Mapping[str, float], moved: Mapping[str, bool], title: str | None = None) -> None:
     """The calibration screen: a bar per control (steering -1 .. 1 from the middle, pedals 0 .. 1) and whether it
     has been moved through its range yet."""
-    import pygame
+    import pygame  # lazy: pygame is loaded when a screen is drawn, not when the module is imported
 
     surface = view.surface
     w, h = surface.get_size()
@@ -140,7 +143,7 @@ def _drain_keys(view: Any) -> None:
     """Take the window's pending events off its queue but a close button's (the next screen's controls ask about
     that): the window keeps answering the system while nothing polls it, and a key pressed while waiting does not
     start the next drive."""
-    import pygame
+    import pygame  # lazy: pygame is loaded when a screen is drawn, not when the module is imported
 
     if getattr(view, "window", False) and pygame.display.get_init():
         pygame.event.get(exclude=pygame.QUIT)
@@ -202,9 +205,6 @@ class SessionWindow:
     def __init__(self, town: str, window: bool) -> None:
         self.view: Any = None
         if window:
-            from pernav.play.view import PlayView
-            from pernav.world.towns import get_town
-
             self.view = PlayView(get_town(town), window=True)
 
     def __enter__(self) -> SessionWindow:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from pernav.play.cameras import Camera, CarShape, Fog, Frame
+from pernav.play.camera_base import Camera, CarShape, Fog, Frame
 from pernav.play.scene import PALETTE, TownScene, marking_quads
 
 __all__ = ["DriverCamera"]
@@ -42,7 +42,7 @@ class DriverCamera(Camera):
 
     def __init__(self, scene: TownScene, size: tuple[int, int], fov: float = 75.0, eye_height: float = 1.2,
                  horizon: float = 0.4, near: float = 0.5, far: float = 160.0) -> None:
-        import pygame
+        import pygame  # lazy: pygame is loaded when a view is made, not when the module is imported
 
         super().__init__(scene, size)
         self.pygame = pygame

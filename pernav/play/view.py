@@ -8,8 +8,8 @@ what lies beyond the simulated driver's sight distance (:mod:`pernav.play.camera
 simulation frames (``alpha``) so the picture moves smoothly at more frames than the world has.
 
 Example (no display needed: an off-screen surface):
-    >>> from pernav.play.loop import PlaySession
-    >>> session = PlaySession("Town1", 0, n_traffic=2, draw=True)
+    >>> from pernav.play.loop import PlayOptions, PlaySession
+    >>> session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, draw=True))
     >>> session.view.surface.get_size()
     (960, 720)
 """
@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from pernav.play.camera_base import CarShape, Fog, Frame
+from pernav.play.cameras import make_camera
 
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
 
@@ -44,7 +47,7 @@ class PlayView:
 
     def __init__(self, town: Any, size: tuple[int, int] = (960, 720), scaling: float = 6.0, window: bool = False,
                  camera: str | None = None, visual: str | None = None) -> None:
-        import pygame
+        import pygame  # lazy: pygame is loaded when a window or picture is made, not when the module is imported
 
         self.pygame = pygame
         self.window = window
@@ -88,8 +91,6 @@ class PlayView:
         self.limit_kmh: float | None = None  # the speed limit of the street the car is on (kept through junctions)
 
     def _choose(self, session: Any) -> None:
-        from pernav.play.cameras import Fog, make_camera
-
         context = getattr(getattr(session.nav, "driver", None), "context", None)
         if self.camera_name is None:
             self.camera_name = context.camera if context is not None else "top"
@@ -229,9 +230,7 @@ def hud_texts(session: Any) -> dict[str, str]:
 def frame_of(session: Any, alpha: float = 1.0) -> Any:
     """What the views show of ``session`` (a :class:`~pernav.play.loop.PlaySession`) with every car ``alpha`` of
     the way from its last frame to this one: a :class:`~pernav.play.cameras.Frame`."""
-    from highway_env.vehicle.graphics import VehicleGraphics
-
-    from pernav.play.cameras import CarShape, Frame
+    from highway_env.vehicle.graphics import VehicleGraphics  # lazy: it imports pygame
 
     nav = session.nav
     world = nav.world

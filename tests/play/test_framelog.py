@@ -13,7 +13,7 @@ from play_helpers import FrameScript
 from pernav.env.navigation import FRAME_KEYS
 from pernav.play.controls import JoystickControls, ScriptedControls
 from pernav.play.framelog import COLUMNS, answer_rows, append_csv, drive_rows
-from pernav.play.loop import PlaySession
+from pernav.play.loop import PlayOptions, PlaySession
 from pernav.world.constants import ACTION_NAMES, PLAYBACK
 from pernav.world.controls import ControlInput
 
@@ -43,7 +43,7 @@ def _rows(rows: list[dict], kind: str) -> list[dict]:
 @pytest.fixture(scope="module")
 def drive():
     """The scripted bot drives a few steps of Town1's route 0 (headless), with a speaker that sometimes fails."""
-    session = PlaySession("Town1", 0, n_traffic=2, seed=0, speaker=_Speaker())
+    session = PlaySession("Town1", 0, speaker=_Speaker(), options=PlayOptions(n_traffic=2, seed=0))
     return session.run(max_steps=STEPS), session.speaker
 
 
@@ -88,7 +88,7 @@ def test_prompt_rows_are_the_chosen_instructions_and_what_played(drive):
 
 
 def test_prompt_rows_of_a_21_action_env_name_instruction_and_playback():
-    result = PlaySession("Town1", 0, n_traffic=0, playback="faster").run(max_steps=3)
+    result = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, playback="faster")).run(max_steps=3)
     prompts = _rows(drive_rows(result, {}), "prompt")
     actions = result.trajectory["action"].reshape(-1).tolist()
     assert [(r["instruction"], r["playback"]) for r in prompts] == [(ACTION_NAMES[a // 3], PLAYBACK[a % 3])
@@ -98,7 +98,7 @@ def test_prompt_rows_of_a_21_action_env_name_instruction_and_playback():
 
 def test_events_and_a_persons_analog_inputs_are_logged():
     script = FrameScript(lambda frame: ControlInput(steer=1.0 if frame > 30 else 0.0, throttle=1.0))
-    result = PlaySession("Town1", 0, n_traffic=0, controls=script).run(max_steps=15)
+    result = PlaySession("Town1", 0, controls=script, options=PlayOptions(n_traffic=0)).run(max_steps=15)
     frames = _rows(drive_rows(result, {}), "frame")
     kerbs = sum("kerb" in r["events"].split(";") for r in frames)
     assert kerbs == result.metrics["edge_strikes"] >= 1
@@ -122,7 +122,8 @@ class _Stick:
 
 
 def test_a_wheels_axes_are_logged():
-    result = PlaySession("Town1", 0, n_traffic=0, controls=JoystickControls(stick=_Stick())).run(max_steps=2)
+    controls = JoystickControls(stick=_Stick())
+    result = PlaySession("Town1", 0, controls=controls, options=PlayOptions(n_traffic=0)).run(max_steps=2)
     frames = _rows(drive_rows(result, {}), "frame")
     assert len(frames) == 20
     assert {(r["wheel"], r["throttle_pedal"], r["brake_pedal"]) for r in frames} == {(-0.25, 0.3, 0.0)}
@@ -134,7 +135,7 @@ def test_session_csv_reads_with_pandas_and_appends_never_rewrite(drive, tmp_path
     path = tmp_path / "session.csv"
     append_csv(path, drive_rows(result, META))
     first = path.read_bytes()
-    quit_drive = PlaySession("Town1", 1, n_traffic=2, controls=ScriptedControls(quit_after=12)).run()
+    quit_drive = PlaySession("Town1", 1, controls=ScriptedControls(quit_after=12), options=PlayOptions(n_traffic=2)).run()
     append_csv(path, [*drive_rows(quit_drive, {**META, "drive": 2}),
                       *answer_rows({**META, "drive": 2}, {"workload": 4, "comment": "too fast, at times"})])
     assert path.read_bytes().startswith(first) and first.count(b"\n") == 10 * STEPS + STEPS + 2  # header too
@@ -175,7 +176,7 @@ def test_unknown_fields_and_other_tables_are_refused(tmp_path):
 
 
 def test_a_quit_drive_logs_what_was_driven():
-    result = PlaySession("Town1", 0, n_traffic=2, controls=ScriptedControls(quit_after=25)).run()
+    result = PlaySession("Town1", 0, controls=ScriptedControls(quit_after=25), options=PlayOptions(n_traffic=2)).run()
     rows = drive_rows(result, {"participant": "p02"})
     assert result.trajectory.shape[0] == 2  # the third second was cut short ...
     assert len(_rows(rows, "frame")) == 25 and len(_rows(rows, "prompt")) == 3  # ... but its frames and decision are logged

@@ -16,7 +16,7 @@ from play_helpers import FrameScript
 from pernav.cli import main
 from pernav.env.navigation import NavigationEnv
 from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlaySession
+from pernav.play.loop import PlayOptions, PlaySession
 from pernav.trainer.drives import load_drive, read_metrics, save_drive
 from pernav.world.controls import ControlInput
 
@@ -30,7 +30,7 @@ METRICS = ("tracking_cost", "vehicle_collisions", "edge_strikes", "missed_turns"
 @pytest.fixture(scope="module")
 def bot_drive():
     """The scripted bot drives Town1's route 0 through the play loop (headless)."""
-    return PlaySession("Town1", 0, n_traffic=2, seed=0).run()
+    return PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, seed=0)).run()
 
 
 def test_bot_drives_a_whole_route(bot_drive):
@@ -49,7 +49,7 @@ def _reckless() -> FrameScript:
 
 
 def test_events_are_counted_for_a_person():
-    result = PlaySession("Town1", 0, n_traffic=0, controls=_reckless()).run(max_steps=15)
+    result = PlaySession("Town1", 0, controls=_reckless(), options=PlayOptions(n_traffic=0)).run(max_steps=15)
     assert result.metrics["edge_strikes"] >= 1
     assert result.trajectory["next", "edge_strikes"][-1] == result.metrics["edge_strikes"]
 
@@ -147,7 +147,7 @@ def test_interrupted_save_leaves_nothing(bot_drive, tmp_path, monkeypatch):
 
 
 def test_quit_mid_drive_keeps_the_whole_steps():
-    result = PlaySession("Town1", 0, n_traffic=2, controls=ScriptedControls(quit_after=25)).run()
+    result = PlaySession("Town1", 0, controls=ScriptedControls(quit_after=25), options=PlayOptions(n_traffic=2)).run()
     assert result.metrics["interrupted"] and not result.metrics["completed"]
     assert result.trajectory.shape[0] == 2  # the third second was cut short: not recorded
 
@@ -189,7 +189,7 @@ def test_screenshot_shows_road_car_and_prompt(tmp_path):
     import pygame
 
     png = tmp_path / "play.png"
-    session = PlaySession("Town1", 0, n_traffic=2, window=True, realtime=False, screenshot=png)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, window=True, realtime=False, screenshot=png))
     session.run(max_steps=12)
     session.close()
     assert session.shot == png and png.is_file()
@@ -259,15 +259,15 @@ class KeyBot(ScriptedControls):
         return self.polls >= self.go_at
 
 
-def _keys_drive(script: dict[int, list[str]], max_steps: int = 6, **kwargs):
-    session = PlaySession("Town1", 0, n_traffic=2, seed=0, countdown=0, **kwargs)
+def _keys_drive(script: dict[int, list[str]], max_steps: int = 6):
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, seed=0, countdown=0))
     session.controls = KeyBot(script, session=session)
     return session, session.run(max_steps=max_steps)
 
 
 @pytest.fixture(scope="module")
 def plain_six():
-    return PlaySession("Town1", 0, n_traffic=2, seed=0).run(max_steps=6)
+    return PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, seed=0)).run(max_steps=6)
 
 
 def _same_drive(a, b) -> None:
@@ -317,7 +317,8 @@ def test_a_real_time_pause_is_not_made_up_afterwards():
             if not self.paused:
                 self.walls.append(time.perf_counter())
 
-    session = PlaySession("Town1", 0, n_traffic=0, seed=0, realtime=True, countdown=0, controls=Pauser())
+    options = PlayOptions(n_traffic=0, seed=0, realtime=True, countdown=0)
+    session = PlaySession("Town1", 0, controls=Pauser(), options=options)
     start = time.perf_counter()
     result = session.run(max_steps=1)
     wall = time.perf_counter() - start
@@ -328,7 +329,7 @@ def test_a_real_time_pause_is_not_made_up_afterwards():
 
 
 def test_the_clock_starts_after_the_person_is_ready_and_the_countdown():
-    session = PlaySession("Town1", 0, n_traffic=0, seed=0, draw=True, ready=True, countdown=0.3)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, seed=0, draw=True, ready=True, countdown=0.3))
     session.controls = KeyBot(go_at=8, session=session)
     before = time.perf_counter()
     result = session.run(max_steps=2)
@@ -347,7 +348,7 @@ def test_ctrl_c_keeps_the_drive_so_far():
             if self.frames >= 25:
                 raise KeyboardInterrupt
 
-    result = PlaySession("Town1", 0, n_traffic=2, controls=CtrlC()).run()
+    result = PlaySession("Town1", 0, controls=CtrlC(), options=PlayOptions(n_traffic=2)).run()
     assert result.ctrl_c and result.metrics["interrupted"] and result.metrics["stopped_by"] == "ctrl-c"
     assert result.trajectory.shape[0] == 2
 
@@ -427,7 +428,7 @@ def test_probe_leaves_a_writable_folder_as_it_was(tmp_path, capsys):
 
 
 def test_no_audio_device_is_a_warning_on_screen_and_in_the_terminal(tmp_path, capsys, monkeypatch):
-    from pernav.play.loop import PlayResult
+    from pernav.play.framelog import PlayResult
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
@@ -516,7 +517,7 @@ def test_joystick_axes_with_inversion_and_the_calibration_screen():
         def take_go(self) -> bool:  # the experimenter presses Enter once every axis was seen moving
             return all(session.calibration.values()) if session.calibration else False
 
-    session = PlaySession("Town1", 0, n_traffic=0, draw=True, ready=True, countdown=0, calibrate=True)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, draw=True, ready=True, countdown=0, calibrate=True))
     session.controls = Wheel(**parse_axes("0,2,3"), stick=stick)
     result = session.run(max_steps=1)
     assert session.calibration == {"steer": True, "throttle": True, "brake": True}
@@ -556,7 +557,7 @@ XVFB_SCRIPT = r'''
 import json, sys
 import pygame
 from pernav.play.controls import KeyboardControls, ScriptedControls
-from pernav.play.loop import PlaySession
+from pernav.play.loop import PlayOptions, PlaySession
 from pernav.trainer import RoundBuffers
 from pernav.trainer.drives import save_drive
 
@@ -590,7 +591,8 @@ class Keys(KeyboardControls):
     def read(self, car):
         return self.bot.read(car)
 
-session = PlaySession("Town1", 0, n_traffic=2, window=True, realtime=False, ready=True, countdown=1.0, fps=5)
+options = PlayOptions(n_traffic=2, window=True, realtime=False, ready=True, countdown=1.0, fps=5)
+session = PlaySession("Town1", 0, options=options)
 session.controls = Keys(session)
 result = session.run()
 session.close()

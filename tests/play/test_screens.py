@@ -12,7 +12,7 @@ import os
 import pytest
 
 from pernav.play.controls import ScriptedControls, SessionKeys
-from pernav.play.loop import PlaySession
+from pernav.play.loop import PlayOptions, PlaySession
 from pernav.world.constants import ACTION_NAMES, audio_duration
 from pernav.world.controls import ControlInput
 
@@ -52,7 +52,7 @@ class Halting(ScriptedControls):
 
 
 def test_a_prompt_holds_until_its_junction_is_passed():
-    session = PlaySession("Town1", 0, n_traffic=0, seed=0)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, seed=0))
     junction = session.nav.route.upcoming(0.0)[0].s
     session.controls = bot = Halting(session)
     session.run(max_steps=50)
@@ -72,7 +72,7 @@ def test_a_prompt_holds_until_its_junction_is_passed():
 
 
 def test_a_re_route_drops_the_prompt_and_one_with_nothing_ahead_stays_a_while():
-    session = PlaySession("Town1", 0, n_traffic=0, seed=0)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, seed=0))
     session.env.reset()
     nav = session.nav
     session.prompt = (1, "normal", nav.world.time - 30.0)  # long ago, the junction still ahead
@@ -88,13 +88,14 @@ def test_a_re_route_drops_the_prompt_and_one_with_nothing_ahead_stays_a_while():
 
 
 def test_the_hud_shows_the_drive_counter_and_hides_the_cost():
-    session = PlaySession("Town1", 0, n_traffic=0, draw=True, title="Drive 2 of 6: Town1 route 0",
-                          progress="Drive 2 of 6", hide_cost=True)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, draw=True, title="Drive 2 of 6: Town1 route 0",
+                                                          progress="Drive 2 of 6", hide_cost=True))
     session.run(max_steps=2)
     texts = hud_texts(session)
     assert texts["drive"] == "Drive 2 of 6" and "cost" not in texts["status"]
-    assert hud_texts(PlaySession("Town1", 0, n_traffic=0, title="Town1 route 0"))["drive"] == "Town1 route 0"
-    assert "drive" not in hud_texts(PlaySession("Town1", 0, n_traffic=0))
+    titled = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, title="Town1 route 0"))
+    assert hud_texts(titled)["drive"] == "Town1 route 0"
+    assert "drive" not in hud_texts(PlaySession("Town1", 0, options=PlayOptions(n_traffic=0)))
 
 
 class Speaker:
@@ -110,18 +111,18 @@ class Speaker:
 def test_a_session_given_a_window_draws_into_it_and_leaves_it_open():
     view = PlayView(get_town("Town1"), size=(480, 360), window=True)
     speaker = Speaker()
-    first = PlaySession("Town1", 0, n_traffic=0, speaker=speaker, view=view, context={"camera": "top"})
+    first = PlaySession("Town1", 0, speaker=speaker, view=view, context={"camera": "top"}, options=PlayOptions(n_traffic=0))
     assert first.view is view
     first.run(max_steps=2)
     first.close()
     assert pygame.display.get_init() and pygame.display.get_surface() is view.surface and speaker.closed == 0
     assert view.camera_name == "top"
-    second = PlaySession("Town2", 1, n_traffic=0, view=view, context={"camera": "first_person"})
+    second = PlaySession("Town2", 1, view=view, context={"camera": "first_person"}, options=PlayOptions(n_traffic=0))
     second.run(max_steps=2)  # the window shows the second drive's town and camera
     assert view.town is second.nav.town and view.camera_name == "first_person"
     view.close()
     assert not pygame.display.get_init()
-    alone = PlaySession("Town1", 0, n_traffic=0, speaker=speaker, window=True, realtime=False)
+    alone = PlaySession("Town1", 0, speaker=speaker, options=PlayOptions(n_traffic=0, window=True, realtime=False))
     alone.close()  # its own window and the speaker, as before
     assert not pygame.display.get_init() and speaker.closed == 1
 

@@ -20,7 +20,7 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 pygame = pytest.importorskip("pygame")
 
 from pernav.play.cameras import CAMERAS, CHASE_ANCHOR, Fog, Frame, make_camera  # noqa: E402
-from pernav.play.loop import PlaySession  # noqa: E402
+from pernav.play.loop import PlayOptions, PlaySession  # noqa: E402
 from pernav.play.scene import PALETTE  # noqa: E402
 from pernav.world.towns import get_town  # noqa: E402
 
@@ -168,7 +168,8 @@ def test_fog_is_only_for_foggy():
 @pytest.mark.parametrize(("camera", "visual"), [("top", "normal"), ("third_person", "foggy"),
                                                 ("first_person", "normal")])
 def test_play_view_follows_the_drive_context(camera, visual):
-    session = PlaySession("Town1", 0, n_traffic=2, draw=True, context={"camera": camera, "visual": visual})
+    context = {"camera": camera, "visual": visual}
+    session = PlaySession("Town1", 0, context=context, options=PlayOptions(n_traffic=2, draw=True))
     session.run(max_steps=2)
     view = session.view
     assert view.camera.name == camera and (view.fog is not None) == (visual == "foggy")
@@ -182,7 +183,7 @@ def test_default_view_is_the_simulated_drivers_camera():
     """Without --camera the person sees through the context's default camera (what the simulated driver assumes)."""
     from pernav.world.drivers import Context
 
-    session = PlaySession("Town1", 0, n_traffic=0, draw=True)
+    session = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, draw=True))
     session.run(max_steps=1)
     assert session.view.camera.name == Context().camera
 
@@ -194,7 +195,8 @@ def _off_road() -> FrameScript:
 
 
 def test_off_the_route_an_arrow_shows_the_way_back():
-    session = PlaySession("Town1", 0, n_traffic=0, draw=True, controls=_off_road(), context={"camera": "third_person"})
+    session = PlaySession("Town1", 0, context={"camera": "third_person"}, controls=_off_road(),
+                          options=PlayOptions(n_traffic=0, draw=True))
     session.run(max_steps=8)
     assert session.nav.world.ego.off_road
     view = session.view
@@ -232,7 +234,7 @@ class _Keys:
 
 def _drive_keys(vehicle: str) -> list[tuple[float, float]]:
     keys = _Keys()
-    PlaySession("Town1", 0, n_traffic=0, controls=keys, context={"vehicle": vehicle}).run(max_steps=4)
+    PlaySession("Town1", 0, controls=keys, context={"vehicle": vehicle}, options=PlayOptions(n_traffic=0)).run(max_steps=4)
     return keys.log
 
 
@@ -262,7 +264,7 @@ def test_the_person_handling_leaves_simulated_drivers_alone():
         return tuple(env.world.ego.position), env.tracking_cost
 
     before = simulated()
-    session = PlaySession("Town1", 0, n_traffic=0, context={"vehicle": "cybertruck"})
+    session = PlaySession("Town1", 0, context={"vehicle": "cybertruck"}, options=PlayOptions(n_traffic=0))
     session.run(max_steps=1)
     assert session.nav.world.ego.KEY_STEER_RATE < DriverCar.KEY_STEER_RATE  # the person's truck only
     assert (DriverCar.KEY_STEER_RATE, DriverCar.KEY_CENTRE_RATE, DriverCar.WHEEL_LAG) == constants
