@@ -6,8 +6,11 @@ prediction becomes the next state is one swappable object (``delta``): for the n
 :class:`~pernav.model.egocentric.EgocentricDifferences` (the window in the frame of the newest state: positions,
 velocities and goals relative to the car and rotated by its heading; the MLP predicts the next-state difference
 in that frame);
-for any other state, :class:`PlainDifferences` (the flat window; ``next_state - state``). Inputs and
-differences are normalized; the statistics are buffers of the module: saved, loaded and swapped with it.
+for any other state, :class:`PlainDifferences` (the flat window; ``next_state - state``). Which one ``delta="auto"``
+(the default) picks is decided by the state's entry names, not its width: the navigation's layout only for the
+navigation's state (``state_dim=STATE_KEYS``, the default); a state given by its size alone (``state_dim=14``) is
+read plainly. Inputs and differences are normalized; the statistics are buffers of the module: saved, loaded and
+swapped with it.
 
 Example:
     >>> import torch
@@ -23,6 +26,7 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -30,7 +34,7 @@ from torch import nn
 from torchrl.data import Categorical, OneHot, TensorSpec
 from torchrl.modules import MLP
 
-from pernav.env.layout import STATE_DIM
+from pernav.env.layout import STATE_KEYS
 from pernav.model.egocentric import ROAD_MAX, EgocentricDifferences
 from pernav.transforms.history import HistoryWindow
 
@@ -86,6 +90,15 @@ def n_discrete_actions(n_actions: int | TensorSpec) -> int:
                      f"dtype={n_actions.dtype}): its actions would be one-hot encoded and lost")
 
 
+def _bare_spec(n_actions: Any) -> Categorical | OneHot | None:
+    """A discrete action spec without its env's batch dimensions and device (``None`` for a number)."""
+    if isinstance(n_actions, OneHot):
+        return OneHot(int(n_actions.space.n), dtype=n_actions.dtype)
+    if isinstance(n_actions, Categorical):
+        return Categorical(int(n_actions.space.n), dtype=n_actions.dtype)
+    return None
+
+
 def _check_one_hot(action: torch.Tensor, n_actions: int) -> None:
     """``ValueError`` unless a floating-point ``action`` is one-hot over ``n_actions`` (a continuous action is not)."""
     if action.shape[-1:] != (n_actions,) or not bool(((action == 0) | (action == 1)).all() and (action.sum(-1) == 1).all()):
@@ -105,9 +118,12 @@ class DynamicsModel(nn.Module):
     """MLP dynamics ``(history window, action) -> next state`` predicting egocentric differences.
 
     Args:
-        state_dim: state size (14, the paper's state; any size with ``delta="plain"``).
+        state_dim: the state's size, or the names of its entries in order; the default, the navigation's
+            :data:`~pernav.env.layout.STATE_KEYS` (14 entries, read in the car's frame with ``delta="auto"``). Any
+            other state (a size, or other names) is read plainly unless ``delta`` says otherwise.
         n_actions: 7, or 21 with playback speed (any number of discrete actions), or the env's action spec
-            (``Categorical`` or ``OneHot``; a continuous spec is refused: the model one-hot encodes its actions).
+            (``Categorical`` or ``OneHot``; a continuous spec is refused: the model one-hot encodes its actions). A
+            spec is remembered (:attr:`action_spec`): an :class:`~pernav.model.ImaginedEnv` of this model takes it.
         K: history length (rows of the window).
         hidden: hidden layer widths ([256, 256, 256] in the paper).
         road: points of the planned route ahead it also reads (:func:`road_points`, 6 m apart, at most
@@ -119,7 +135,8 @@ class DynamicsModel(nn.Module):
             few numbers the meta-trained network has learned to read, instead of a step on every weight).
         delta: how the window is read and a prediction becomes the next state: ``"egocentric"``
             (:class:`EgocentricDifferences`, the 14-d navigation state), ``"plain"`` (:class:`PlainDifferences`),
-            ``"auto"`` (egocentric for a 14-d state, else plain) or an object with the same methods.
+            ``"auto"`` (egocentric for the navigation's state, named by ``STATE_KEYS``; plain for any other) or an
+            object with the same methods.
 
     The window convention is :class:`~pernav.transforms.HistoryWindow`'s: the newest row holds the current
     state and a zero action; :meth:`forward` writes ``action`` there. :meth:`next_window` shifts a window
@@ -131,19 +148,27 @@ class DynamicsModel(nn.Module):
     torch.Size([3, 5, 21])
     """
 
-    def __init__(self, state_dim: int = STATE_DIM, n_actions: int | TensorSpec = 7, K: int = 5,
+    def __init__(self, state_dim: int | Sequence[str] = STATE_KEYS, n_actions: int | TensorSpec = 7, K: int = 5,
                  hidden: Sequence[int] = (256, 256, 256), road: int = 0, context: int = 0,
                  delta: str | EgocentricDifferences | PlainDifferences = "auto") -> None:
         super().__init__()
+        #: the action spec the model was built from (``Categorical`` / ``OneHot``), or ``None`` for a number
+        self.action_spec = _bare_spec(n_actions)
         n_actions = n_discrete_actions(n_actions)
-        if int(state_dim) < 1 or int(n_actions) < 1:
-            raise ValueError(f"state_dim and n_actions must be >= 1, got {state_dim} and {n_actions}")
+        #: the state's entry names, where given (``state_dim`` as names); ``None`` for a state given by its size
+        self.state_keys = None if isinstance(state_dim, int) else tuple(str(k) for k in state_dim)
+        state_dim = int(state_dim) if self.state_keys is None else len(self.state_keys)
+        if int(state_dim) < 1 or int(n_actions) < 1 or int(K) < 1:
+            raise ValueError(f"state_dim, n_actions and K must be >= 1, got {state_dim}, {n_actions} and {K}")
         if isinstance(delta, str):
-            if delta == "auto":
-                delta = "egocentric" if int(state_dim) == STATE_DIM else "plain"
+            if delta == "auto":  # by the state's names, not its width: a 14-d state of another task is plain
+                delta = "egocentric" if self.state_keys == STATE_KEYS else "plain"
             if delta not in DELTAS:
                 raise ValueError(f"unknown delta {delta!r}; choose one of auto, {', '.join(DELTAS)}")
             delta = DELTAS[delta]()
+        if delta.name == "egocentric" and self.state_keys not in (None, STATE_KEYS):
+            raise ValueError(f"delta='egocentric' reads the navigation's state {STATE_KEYS}, got the state "
+                             f"{self.state_keys}; use delta='plain' for another state")
         self.delta_layout = delta
         delta.check(int(state_dim), int(road))
         if not 0 <= int(road) <= ROAD_MAX:
@@ -165,8 +190,20 @@ class DynamicsModel(nn.Module):
         self.register_buffer("out_std", torch.ones(state_dim))
 
     # ----- window <-> features -------------------------------------------------------------------
+    def check_window(self, window: torch.Tensor, name: str = "history") -> None:
+        """``ValueError`` naming the model's ``K``, ``state_dim`` and ``n_actions`` unless ``window`` is a
+        ``[..., K, state_dim + n_actions]`` history window (a :class:`~pernav.transforms.HistoryWindow`'s)."""
+        expected = (self.K, self.state_dim + self.n_actions)
+        if tuple(window.shape[-2:]) != expected or window.ndim < 2:
+            raise ValueError(f"DynamicsModel(K={self.K}, state_dim={self.state_dim}, n_actions={self.n_actions}) reads "
+                             f"a {name} window [..., {expected[0]}, {expected[1]}] (K rows of state and one-hot "
+                             f"action); got {tuple(window.shape)}: build the env's HistoryWindow(K={self.K}) for this "
+                             "model, or the model with the data's K, state size and number of actions")
+
+
     def with_action(self, history: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The window with ``action`` (categorical ``[...]`` or one-hot) in its newest row."""
+        self.check_window(history, "history")
         if action.is_floating_point():  # a one-hot action, or a continuous one the one-hot code would drop
             _check_one_hot(action, self.n_actions)
         one_hot = self.window._one_hot(action, history.ndim - 2).to(history.dtype)
@@ -176,6 +213,7 @@ class DynamicsModel(nn.Module):
     def features(self, window: torch.Tensor, road: torch.Tensor | None = None) -> torch.Tensor:
         """Flat features of a window with its action, ``[..., n_features]``, as the model's ``delta`` object
         reads it (:class:`EgocentricDifferences`, :class:`PlainDifferences`)."""
+        self.check_window(window, "window")
         if window.dtype != self.in_mean.dtype:
             raise TypeError(f"DynamicsModel: a {window.dtype} window for a {self.in_mean.dtype} model; convert one "
                             f"to the other (model.to({window.dtype}), or the data)")

@@ -29,7 +29,7 @@ from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Categorical, Composite, OneHot, Unbounded
-from torchrl.envs import ModelBasedEnvBase
+from torchrl.envs import EnvBase, ModelBasedEnvBase
 from torchrl.modules import WorldModelWrapper
 
 from pernav.model.actions import action_indices
@@ -102,6 +102,12 @@ class _Imagine(nn.Module):
         self.model, self.reward_fn, self.termination_fn, self.one_hot = model, reward_fn, termination_fn, one_hot
 
     def forward(self, observation: torch.Tensor, history: torch.Tensor, action: torch.Tensor):
+        like = self.model.out_mean  # a real env's float32 state into a float64 (or another device's) model
+        if history.dtype != like.dtype or history.device != like.device:
+            history = history.to(device=like.device, dtype=like.dtype)
+        if observation.dtype != like.dtype or observation.device != like.device:
+            observation = observation.to(device=like.device, dtype=like.dtype)
+        action = action.to(like.device)
         if self.one_hot:  # a OneHot spec's actions: the model and reward_fn read indices either way
             action = action_indices(action, history.shape[:-2], self.model.n_actions)
         action = action.reshape(history.shape[:-2]) if action.numel() == history.shape[:-2].numel() else action
@@ -115,6 +121,34 @@ class _Imagine(nn.Module):
         return next_state, window, reward.to(next_state.dtype), done, done.clone()
 
 
+def _check_env(env: EnvBase, model: DynamicsModel, observation_key: NestedKey, history_key: NestedKey,
+               action_key: NestedKey) -> Categorical | OneHot:
+    """``env``'s action spec (at ``action_key``) after checking that ``model`` can stand in for ``env``: a discrete
+    spec of the model's number of actions, an observation of the model's state size and a history window of its
+    ``K``; ``ValueError`` naming what differs and the fix."""
+    spec = env.full_action_spec[action_key] if action_key in env.full_action_spec.keys(True) else None
+    if type(spec) not in (Categorical, OneHot) or spec.space.n != model.n_actions:
+        raise ValueError(f"ImaginedEnv(env=): the env's action spec at {action_key!r} is {spec}, but the model takes "
+                         f"{model.n_actions} discrete actions (Categorical or OneHot): build the model with "
+                         "DynamicsModel(n_actions=env.action_spec)")
+    observations = env.observation_spec
+    expected = {observation_key: (model.state_dim,),
+                history_key: (model.K, model.state_dim + model.n_actions)}
+    for key, shape in expected.items():
+        got = tuple(observations[key].shape[-len(shape):]) if key in observations.keys(True) else None
+        if got != shape:
+            raise ValueError(f"ImaginedEnv(env=): the env's {key!r} is {got if got is not None else 'missing'}, the "
+                             f"model's {shape} (state_dim={model.state_dim}, K={model.K}, n_actions={model.n_actions}): "
+                             f"give the env a HistoryWindow(K={model.K}) and the model the env's state size, or name "
+                             "the entries with observation_key=/history_key=")
+    return _bare(spec)
+
+
+def _bare(spec: Categorical | OneHot) -> Categorical | OneHot:
+    """The spec without its env's batch dimensions and device."""
+    return type(spec)(int(spec.space.n), dtype=spec.dtype)
+
+
 class ImaginedEnv(ModelBasedEnvBase):
     """A learned model's imagination as a TorchRL env (any batch size); see the module docstring.
 
@@ -124,9 +158,13 @@ class ImaginedEnv(ModelBasedEnvBase):
         termination_fn: ``next_state -> bool [...]`` (an imagined failure ends the rollout's reward), or ``None``.
         device: the env's device: the model's (``None``), or the device the model already lives on (a model
             elsewhere is refused, not moved in place: :func:`model_device`).
-        action_spec: ``Categorical(n_actions)`` (``None``, the default) or a ``OneHot(n_actions)`` spec, e.g. the
-            real env's (``GymEnv``'s default), so that a planner on this env writes the actions the real env takes;
-            ``reward_fn`` reads indices either way.
+        action_spec: a ``Categorical(n_actions)`` or ``OneHot(n_actions)`` spec, e.g. the real env's (``GymEnv``'s
+            default), so that a planner on this env writes the actions the real env takes; ``reward_fn`` reads
+            indices either way. ``None`` (the default): ``env``'s, else the spec the model was built from
+            (``DynamicsModel(n_actions=env.action_spec)``), else ``Categorical(n_actions)``.
+        env: the real env this model env stands in for (a planner on it drives ``env``): its action spec is taken,
+            and its observation and history window are checked against the model's (``ValueError`` naming the
+            entry and the fix).
         observation_key, history_key, action_key: the entry names (the real env's and its
             :class:`~pernav.transforms.HistoryWindow`'s, e.g. ``in_keys``/``out_keys``); a planner on this env takes
             the same ``action_key``.
@@ -138,12 +176,21 @@ class ImaginedEnv(ModelBasedEnvBase):
     def __init__(self, model: DynamicsModel, reward_fn: RewardFn, termination_fn: TerminationFn | None = None,
                  device: str | torch.device | None = None, action_spec: Categorical | OneHot | None = None, *,
                  observation_key: NestedKey = "observation", history_key: NestedKey = "history",
-                 action_key: NestedKey = "action") -> None:
+                 action_key: NestedKey = "action", env: EnvBase | None = None) -> None:
         device = model_device(model, device, type(self).__name__)
+        if env is not None:
+            env_spec = _check_env(env, model, observation_key, history_key, action_key)
+            if action_spec is not None and (type(action_spec), action_spec.space.n) != (type(env_spec),
+                                                                                        env_spec.space.n):
+                raise ValueError(f"ImaginedEnv(action_spec={action_spec}) differs from the action spec of env "
+                                 f"({env_spec}): give one of them")
+            action_spec = env_spec
+        elif action_spec is None:
+            action_spec = getattr(model, "action_spec", None)  # the spec the model was built from, if any
         if action_spec is not None and (type(action_spec) not in (Categorical, OneHot)
                                         or action_spec.space.n != model.n_actions):
-            raise ValueError(f"action_spec must be a Categorical or OneHot spec of the model's {model.n_actions} "
-                             f"actions, got {action_spec}")
+            raise ValueError(f"ImaginedEnv(action_spec=) must be a Categorical or OneHot spec of the model's "
+                             f"{model.n_actions} actions, got {action_spec} (give the real env's, or env=)")
         one_hot = isinstance(action_spec, OneHot)  # rebuilt without the real env's batch dimensions and device
         action_spec = (OneHot(model.n_actions, dtype=action_spec.dtype) if one_hot else
                        Categorical(model.n_actions) if action_spec is None else
@@ -168,8 +215,13 @@ class ImaginedEnv(ModelBasedEnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         given = tensordict is not None and all(key in tensordict.keys(True) for key in self._start_keys)
-        if given:
+        if given:  # a real env's state, in the model's dtype and on its device (a float64 or CUDA model)
             out = tensordict.select(*self._start_keys).clone()
+            for key in self._start_keys:
+                spec = self.observation_spec[key]
+                value = out.get(key)
+                if value.dtype != spec.dtype or value.device != spec.device:
+                    out.set(key, value.to(device=spec.device, dtype=spec.dtype))
         else:
             out = self.state_spec.zero(tensordict.shape if tensordict is not None else self.batch_size)
         out.set("done", torch.zeros(*out.shape, 1, dtype=torch.bool, device=out.device))
