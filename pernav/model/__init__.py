@@ -6,13 +6,15 @@ here, on first use.
 """
 
 from pernav._lazy import lazy_exports
-from pernav.model.adapt import LossFn, adapt, meta_parameters, trajectory_windows
+from pernav.model.adapt import MAX_NORM, AdaptInfo, LossFn, adapt, meta_parameters, trajectory_windows
 from pernav.model.dynamics import DELTAS, DynamicsModel, PlainDifferences
 from pernav.model.imagined import ImaginedEnv, PlainWorldModel, model_device
 from pernav.model.losses import multistep_loss, single_step_loss, using
 
 __all__ = [
     "DELTAS",
+    "MAX_NORM",
+    "AdaptInfo",
     "DynamicsModel",
     "ImaginedEnv",
     "LossFn",
