@@ -16,23 +16,17 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from pernav.env.policies import belief_policy
-from pernav.env.torchrl_env import info_action_module
 from pernav.learners.belief import BeliefTracker
-from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayError, PlaySession
-from pernav.play.personal import PersonalResult, _policy_row, study_settings, summary_markdown
-from pernav.play.screens import SessionWindow
-from pernav.play.sessions import check_session
-from pernav.study.checkpoints import final_belief
-from pernav.study.config import BELIEF_DEFAULTS
-from pernav.study.errors import CheckpointError
+from pernav.play.options import PlayError, PlayOptions
+from pernav.play.personal import PersonalSession
+from pernav.play.sessions import PersonalResult, Session, belief_markdown, check_session, policy_row, study_errors
+from pernav.study.finished import FinishedStudy
 from pernav.trainer.collect import derive_seed
 from pernav.trainer.drives import atomic_write, save_drive
 
@@ -57,52 +51,40 @@ def prompt_lead(fields: dict[str, Any], speed: float = REFERENCE_SPEED) -> float
 def session_class(learner: str) -> type:
     """The session ``pernav personalize --learner LEARNER`` runs: :class:`BeliefSession` for ``"belief"``, else
     :class:`pernav.play.personal.PersonalSession` (a model-based learner of the study)."""
-    from pernav.play.personal import PersonalSession
-
     return BeliefSession if learner == "belief" else PersonalSession
 
 
-class BeliefSession:
+class BeliefSession(Session):
     """A person's drives with prompts timed by the belief learner of the study in ``study_dir`` (its answer detector
-    and population prior for ``town``). The options are :class:`pernav.play.personal.PersonalSession`'s, but for
-    ``updates`` and ``resume`` (the belief takes no gradient steps; a stopped session is kept, not resumed) and
-    ``learner`` (always ``"belief"``); ``window``: one window for the whole session, as there."""
+    and population prior for ``town``: :meth:`pernav.study.finished.FinishedStudy.policy`). The arguments and options
+    are :class:`~pernav.play.sessions.Session`'s, but for ``updates`` and ``resume`` (the belief takes no gradient
+    steps; a stopped session is kept, not resumed) and ``learner`` (``"belief"`` only); ``window``: one window for
+    the whole session, as there."""
 
-    def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
-                 context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
-                 n_traffic: int = 8, updates: int | None = None, learner: str = "belief", window: bool = False,
-                 speaker: Any = None, announce: Callable[[str], None] | None = None,
-                 ready: Callable[[], None] | None = None, progress: bool = True, resume: bool = False,
-                 countdown: float = 3.0, hide_cost: bool = False, notice: str | None = None,
-                 calibrate: bool = False) -> None:
-        if learner != "belief":
-            raise PlayError(f"BeliefSession runs the belief learner, not {learner!r} (use PersonalSession)")
-        if updates is not None:
+    def _open(self, study_dir: str | Path) -> None:
+        """Check the options, open the record folder and the study's belief learner."""
+        options = self.options
+        if (options.learner or "belief") != "belief":
+            raise PlayError(f"BeliefSession runs the belief learner, not {options.learner!r} (use PersonalSession)")
+        if options.updates is not None:
             raise PlayError("--updates goes with a model-based learner; the belief learner takes no gradient steps")
-        if resume:
+        if options.resume:
             raise PlayError("--resume goes with a model-based learner; a belief session's drives and belief.pt are "
                             "kept as they were driven: start a new session")
-        self.routes = list(routes)
-        self.record_dir = check_session(town, self.routes, seed, record_dir, resume=False)
-        config = study_settings(study_dir, town)
-        try:
-            model = final_belief(study_dir, town)
-        except CheckpointError as exc:
-            raise PlayError(str(exc)) from None
-        guard = bool({**BELIEF_DEFAULTS, **(config.get("belief") or {})}["guard"])
-        self.tracker = BeliefTracker.from_model(model, guard=guard)
-        self.study, self.town, self.seed = str(study_dir), town, int(seed)
-        self.user, self.context, self.n_traffic = user, context, int(n_traffic)
-        self.controls, self.window, self.speaker = controls, window, speaker
-        self.announce = announce or (lambda line: None)
-        self.ready = ready or (lambda: None)
-        self.countdown, self.hide_cost, self.notice, self.calibrate = countdown, hide_cost, notice, calibrate
-        self.drives: list[dict[str, Any]] = []
+        self.record_dir = check_session(self.town, self.routes, options.seed, options.record_dir, resume=False)
+        with study_errors():
+            self.policy, _ = FinishedStudy.open(study_dir).policy("belief", self.town)
+        self.study = str(study_dir)
         self.beliefs: list[dict[str, Any]] = [self._belief_record(None)]  # the prior, then after each whole drive
-        self.learned: list[int] = []  # the drives the belief has read (the CLI's resume line counts them)
-        self.learn_s: float | None = None  # how long reading the last drive took (the next wait's estimate)
-        self.screens = SessionWindow(town, False)  # the session's window, opened by run()
-        self.ctrl_c = False
+
+    @property
+    def tracker(self) -> BeliefTracker:
+        """The belief about the person now (it has read every whole drive's answers so far)."""
+        return self.policy.belief
+
+    @tracker.setter
+    def tracker(self, tracker: BeliefTracker) -> None:
+        self.policy.belief = tracker
 
     def _belief_record(self, drive: int | None) -> dict[str, Any]:
         """What the person is shown: the estimated reaction time, its 90 % interval, the answers read so far and
@@ -118,28 +100,13 @@ class BeliefSession:
                            "decision_interval": [round(low, 3), round(high, 3)], "junctions": int(b.outcomes)})
         return record
 
-    def _controls(self) -> Any:
-        if self.controls is None:
-            return ScriptedControls()
-        if hasattr(self.controls, "read") and not isinstance(self.controls, type):
-            return self.controls
-        return self.controls()
-
     def _drive(self, number: int, route: int) -> Any:
         policy_name = "explore" if number == 1 else "belief"
         title = f"Drive {number} of {len(self.routes)}: {self.town} route {route}"
-        self.announce(title)
-        self.ready()
-        policy = "explore" if policy_name == "explore" else info_action_module("belief_action")
-        self.screens.waiting(title, None)
-        session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
-                              seed=derive_seed(self.seed, self.town, "drive", number), n_traffic=self.n_traffic,
-                              window=self.window, speaker=self.speaker,
-                              env_config={"belief": self.tracker}, title=title, countdown=self.countdown,
-                              hide_cost=self.hide_cost, notice=self.notice, calibrate=self.calibrate and number == 1,
-                              progress=f"Drive {number} of {len(self.routes)}", view=self.screens.view)
-        session.controls = self._controls()
-        result = session.run()
+        # explore's drive runs with the belief too (the env reads its answers as it goes; the rule is explore's)
+        options = PlayOptions(seed=derive_seed(self.seed, self.town, "drive", number), env_config=self.policy.env_config,
+                              calibrate=self.calibrate and number == 1, progress=f"Drive {number} of {len(self.routes)}")
+        result = self._play(route, "explore" if policy_name == "explore" else self.policy, title, options)
         m = result.metrics
         record = {**m, "policy": policy_name, "round": number - 1, "route": route, "label": f"drive{number}",
                   "frames": result.frame_stats(), "file": None}
@@ -147,9 +114,7 @@ class BeliefSession:
             name = f"drive{number:02d}-route{route}-{policy_name}" + ("-stopped" if m["interrupted"] else "")
             record["file"] = str(save_drive(result.trajectory, record, self.record_dir, name))
         self.drives.append(record)
-        state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
-        cost = "" if self.hide_cost else f"tracking cost {m.get('tracking_cost', 0):.0f}, "
-        self.announce(f"  {state} after {m.get('time', 0):.0f} s: {cost}missed turns {m.get('missed_turns', 0)}")
+        self._tell(m, (("missed turns", "missed_turns"),))
         if result.trajectory is not None and not m["interrupted"]:
             self._learn(number, result.trajectory)
         return result
@@ -190,56 +155,28 @@ class BeliefSession:
                 "drives": self.drives, "beliefs": self.beliefs}
         atomic_write(self.record_dir / "session.json", lambda p: p.write_text(json.dumps(data, indent=1)))
 
-    def run(self) -> PersonalResult:
-        """Drive the routes in order; stops early when the person quits or on Ctrl-C (what was driven is kept)."""
-        interrupted = False
-        with SessionWindow(self.town, self.window) as self.screens:  # closed at the end, whatever happens
-            try:
-                for number, route in enumerate(self.routes, start=1):
-                    result = self._drive(number, route)
-                    self.ctrl_c = self.ctrl_c or result.ctrl_c
-                    if result.metrics["interrupted"] or result.ctrl_c:
-                        interrupted = True
-                        break
-            except KeyboardInterrupt:
-                interrupted = self.ctrl_c = True
-            return self._finish(interrupted)
+    def _drive_all(self) -> bool:
+        """Drive the routes in order; True when the person stopped a drive (or Ctrl-C)."""
+        for number, route in enumerate(self.routes, start=1):
+            result = self._drive(number, route)
+            self.ctrl_c = self.ctrl_c or result.ctrl_c
+            if result.metrics["interrupted"] or result.ctrl_c:
+                return True
+        return False
 
     def _finish(self, interrupted: bool) -> PersonalResult:
         """The summary of what was driven, written; the end screen (not after Ctrl-C)."""
         whole = [d for d in self.drives if not d["interrupted"]]
         summary = {"study": self.study, "town": self.town, "routes": self.routes, "seed": self.seed,
                    "learner": "belief", "interrupted": interrupted,
-                   "policies": {name: _policy_row([d for d in whole if d["policy"] == name])
+                   "policies": {name: policy_row([d for d in whole if d["policy"] == name])
                                 for name in ("belief", "explore")},
                    "beliefs": self.beliefs,
                    "drives": [{k: d[k] for k in ("round", "route", "label", "policy", "tracking_cost", "missed_turns",
                                                  "completed", "interrupted", "file") if k in d} for d in self.drives]}
         if self.record_dir is not None and self.drives:
             self._save()
-            atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-            atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
-                f"# Personal timing: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
-                f"{summary_markdown(summary)}\n"))
-        if not self.ctrl_c:  # stopped at the terminal (Ctrl-C): no screen waits for the person
-            self.ctrl_c = self.screens.finish(self._controls, len(whole), len(self.routes), interrupted)
-        if self.speaker is not None and hasattr(self.speaker, "close"):
-            self.speaker.close()
+            self._write_summary(summary, "Personal timing")
+        self._end(len(whole), len(self.routes), interrupted)
         return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)
-
-
-def belief_markdown(summary: dict[str, Any]) -> str:
-    """The belief after each drive as a Markdown table.
-
-    >>> print(belief_markdown({"beliefs": [{"after_drive": None, "reaction_time": 1.2, "interval": [0.8, 1.9],
-    ...     "answers": 0, "turn_lead_s": 2.6}]}).splitlines()[2])
-    | prior | 1.20 s | 0.80-1.90 s | 0 | 2.6 s |
-    """
-    lines = ["| after | reaction time | 90 % interval | answers read | 'turn' lead at 50 km/h |",
-             "|---|---|---|---|---|"]
-    for b in summary["beliefs"]:
-        after = "prior" if b["after_drive"] is None else f"drive {b['after_drive']}"
-        lines.append(f"| {after} | {b['reaction_time']:.2f} s | {b['interval'][0]:.2f}-{b['interval'][1]:.2f} s | "
-                     f"{b['answers']} | {b['turn_lead_s']:.1f} s |")
-    return "\n".join(lines)
 

@@ -1,13 +1,10 @@
-"""A study's navigation personalized to a person: the adapted-model policy and Algorithm 1 with a person in the loop.
+"""A study's navigation personalized to a person: Algorithm 1 with a person in the loop.
 
-:func:`study_policy` loads a finished study's meta model ensemble for a town
-(:func:`pernav.study.checkpoints.final_models`), adapts every member to a person on their drive tau exactly as the
-study adapts to a round's user at test time (``U``: one gradient step of ``alpha`` on tau's L-step loss, backtracked
-and clipped as the study's ``TrainConfig`` says; or ``personal_updates`` maximum-likelihood updates where the study
-used them) and returns the study's own planner (its
-``planner`` options, ``retime`` by default) on :class:`~pernav.model.navigation.ImaginedNavigationEnv` planning with
-those parameters: a :class:`StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession` policy, that also
-carries the env settings the study planned on (history ``K``, planning context lengths), which the session takes.
+The study's policies come from :class:`pernav.study.finished.FinishedStudy` (its meta model ensemble for a town,
+adapted to a person on their drive tau exactly as the study adapts to a round's user at test time, with the study's
+own planner: a :class:`~pernav.study.finished.StudyPolicy`, callable as a :class:`~pernav.play.loop.PlaySession`
+policy, that carries the env settings the study planned on, which the session takes); :func:`study_policy` and
+:func:`study_history` say the same for a study's folder, in play's words (:class:`~pernav.play.options.PlayError`).
 
 :class:`PersonalSession` is the paper's Algorithm 1 with one person as the stream of users: round 0, the person
 drives ``routes[0]`` with explore (tau); the meta model takes FTML updates on it and adapts to it. Each next route
@@ -26,46 +23,44 @@ interrupted session in its folder: the drives already whole are kept (tau among 
 after the last round learned, and the session goes on with the first drive not yet whole.
 
 Example (the scripted bot drives; a finished study in ``runs/smoke``):
-    >>> policy, info = study_policy("runs/smoke", "Town1")                             # doctest: +SKIP
-    >>> PlaySession("Town1", 3, policy=policy, n_traffic=2).run().metrics["policy"]   # doctest: +SKIP
+    >>> policy, info = study_policy("runs/smoke", "Town1")                                        # doctest: +SKIP
+    >>> PlaySession("Town1", 3, policy=policy, options=PlayOptions(n_traffic=2)).run().metrics["policy"]  # doctest: +SKIP
     'study'
     >>> result = PersonalSession("runs/smoke", "Town1", [0, 3, 5], record_dir="me/").run()  # doctest: +SKIP
     >>> sorted(result.summary["policies"])                                             # doctest: +SKIP
     ['adapted', 'explore']
+    >>> study_history("/nonexistent", "Town1")
+    Traceback (most recent call last):
+    ...
+    pernav.play.options.PlayError: no study folder '/nonexistent'
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import pickle
 import random
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import torch
 from tensordict import TensorDictBase
+from tqdm.auto import tqdm
 
-from pernav.model.dynamics import DynamicsModel
-from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-from pernav.planner.factory import build_planner, env_planning_config
-from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayError, PlayResult, PlaySession
-from pernav.play.screens import SessionWindow
-from pernav.play.sessions import check_session
-from pernav.study.checkpoints import final_models
-from pernav.study.config import LEARNERS
-from pernav.study.errors import CheckpointError
+from pernav.play.framelog import PlayResult
+from pernav.play.options import PlayError, PlayOptions
+from pernav.play.sessions import PersonalResult, Session, check_session, policy_row, study_errors, summary_markdown
+from pernav.study.finished import FinishedStudy, StudyPolicy, adapted_parameters
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import derive_seed, in_action_space
 from pernav.trainer.drives import atomic_write, load_drive, save_drive
-from pernav.trainer.ensemble import EnsembleTrainer
-from pernav.trainer.ftml import TrainConfig
+from pernav.world.constants import N_INSTRUCTIONS
 
-__all__ = ["PersonalResult", "PersonalSession", "StudyModel", "StudyPolicy", "adapted_parameters", "load_study",
-           "study_policy", "summary_markdown"]
+__all__ = ["PersonalResult", "PersonalSession", "study_history", "study_policy", "summarize_drives",
+           "summary_markdown"]
 
 POLICY_NAMES = ("adapted", "explore")  # the two policies a personalization session compares
 # the settings a resumed session must share with the interrupted one
@@ -76,199 +71,32 @@ UPDATES = 10
 # what the window says one meta update takes before a session has measured its own (a lab laptop: ~41 s for 10)
 UPDATE_S = 4.0
 
-# train options added after studies had been saved, with the value an older study.json without them ran with
-# (pernav.study.study.ADDED_OPTIONS; not imported: it loads the whole study package)
-_TRAIN_ADDED = {"ensemble": 1, "personal_updates": 0, "personal_replay": 0.0, "road": 0, "context": 0}
-
-
-@dataclass
-class StudyModel:
-    """What a finished study gives for one town and learner: its settings and the final meta ensemble."""
-
-    folder: Path
-    town: str
-    learner: str
-    n_actions: int
-    train: TrainConfig
-    planner: dict[str, Any]  # the study's planner options (kind retime by default)
-    model_config: dict[str, Any]
-    members: list[dict[str, Any]]  # every ensemble member's state dict
-    config: dict[str, Any] = field(repr=False, default_factory=dict)  # the whole study.json
-
-    @property
-    def K(self) -> int:
-        """The history window the model reads (the env's ``HistoryWindow`` must match)."""
-        return int(self.model_config["K"])
-
-    @property
-    def meta(self) -> bool:
-        """Whether the learner adapts to a user (``sysid`` does not)."""
-        return self.learner != "sysid"
-
-    def env_config(self, n_actions: int | None = None) -> dict[str, Any]:
-        """The navigation env's config entries of the study's drives in an ``n_actions`` env (default: the
-        learner's): the planning context lengths its planner needs and the playback actions (as ``runner._env``)."""
-        n = self.n_actions if n_actions is None else n_actions
-        return {"adaptive_speed": n == 21, **env_planning_config(self.planner)}
-
-    def trainer(self, buffers: RoundBuffers | None = None, seed: int = 0) -> EnsembleTrainer:
-        """An ensemble trainer starting from the study's final members (fresh Adam with the study's ``lr``: the
-        checkpoint's moments belong to the study's stream of drivers, not to this one)."""
-        return EnsembleTrainer.from_states(self.model_config, self.members, self.train, buffers, seed)
-
-
-def study_settings(study_dir: str | Path, town: str) -> dict[str, Any]:
-    """A finished study's ``study.json`` (its settings), checked: a folder holding a finished study that ran ``town``;
-    :class:`PlayError` (one line) otherwise. Reads no checkpoint (fast: the checks before a window opens)."""
-    folder = Path(study_dir)
-    if not folder.is_dir():
-        raise PlayError(f"no study folder {str(folder)!r}")
-    marker = folder / "study.json"
-    if not marker.is_file():
-        raise PlayError(f"{str(folder)!r} holds no pernav study (no study.json)")
-    try:
-        config = json.loads(marker.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise PlayError(f"{str(marker)!r} is corrupted") from None
-    if not isinstance(config, dict):
-        raise PlayError(f"{str(marker)!r} is not a study configuration")
-    if not (folder / "results.json").is_file():
-        raise PlayError(f"the study in {str(folder)!r} is not finished (no results.json): finish it with "
-                        "pernav study --resume")
-    towns = list(config.get("towns") or [])
-    if town not in towns:
-        raise PlayError(f"the study in {str(folder)!r} did not run {town}; it ran {', '.join(towns) or 'no town'}")
-    return config
-
 
 def study_history(study_dir: str | Path, town: str) -> int:
-    """The history window (steps) a finished study's model reads: what a drive recorded for it must have."""
-    train = study_settings(study_dir, town).get("train") or {}
-    return int(train.get("K", TrainConfig().K))
-
-
-def load_study(study_dir: str | Path, town: str, learner: str = "adapt") -> StudyModel:
-    """Read a finished study's settings and final ensemble of ``learner`` in ``town``; :class:`PlayError` (one line)
-    for a missing or unfinished study folder, a town it did not run, a learner it did not train.
-
-    >>> load_study("/nonexistent", "Town1")
-    Traceback (most recent call last):
-    ...
-    pernav.play.loop.PlayError: no study folder '/nonexistent'
-    """
-    folder = Path(study_dir)
-    config = study_settings(folder, town)
-    methods = list(config.get("methods") or [])
-    if learner not in LEARNERS or not (learner in methods or (learner == "adapt" and "hindsight" in methods)):
-        trained = [m for m in LEARNERS if m in methods or (m == "adapt" and "hindsight" in methods)]
-        raise PlayError(f"learner {learner!r} not in the study; it trained {', '.join(trained) or 'none'}")
-    known = {f.name for f in fields(TrainConfig)}
-    train = TrainConfig(**{**_TRAIN_ADDED, **{k: v for k, v in (config.get("train") or {}).items() if k in known}})
-    try:
-        model, members = final_models(folder, town, learner)
-    except (CheckpointError, OSError, KeyError, RuntimeError, EOFError, pickle.UnpicklingError, json.JSONDecodeError) as exc:
-        raise PlayError(f"cannot read the study's {town} checkpoint: {' '.join(str(exc).split())}") from None
-    return StudyModel(folder, town, learner, LEARNERS[learner], train, dict(config.get("planner") or {"kind": "retime"}),
-                      model.config(), members, config)
-
-
-def adapted_parameters(study: StudyModel, trainer: EnsembleTrainer, drives: Sequence[TensorDictBase],
-                       seed: int = 0) -> list[TensorDictBase]:
-    """Every member's parameters for planning with a person whose latest drives are ``drives`` (the last one is
-    their tau), by the study's own test-time rule (:meth:`~pernav.trainer.EnsembleTrainer.adapted_parameters`):
-    ``U(P, tau)``, or ``personal_updates`` updates on the drives. No drives (or ``sysid``): the meta parameters.
-
-    >>> study = load_study("runs/smoke", "Town1")                                      # doctest: +SKIP
-    >>> len(adapted_parameters(study, study.trainer(), [tau])) == study.train.ensemble  # doctest: +SKIP
-    True
-    """
-    if not drives or not study.meta:
-        return trainer.adapted_parameters(None, meta=False)
-    for d in drives:
-        if d["history"].shape[-2] != study.K:
-            raise PlayError(f"a drive with a history of {d['history'].shape[-2]} steps: the study's model reads "
-                            f"{study.K} (record it with this study's policy or session, or pernav play --history "
-                            f"{study.K})")
-    drives = [in_action_space(d, study.n_actions) for d in drives]
-    return trainer.adapted_parameters(drives[-1], drives, seed=seed)
-
-
-class StudyPolicy:
-    """A study's MPC planner with given (adapted) parameters, callable as a :class:`PlaySession` policy.
-
-    ``env_config`` and ``K`` are the env settings the study planned on; a :class:`PlaySession` with this policy
-    takes them (so the history window and the planning context match the planner)."""
-
-    __name__ = "study"
-
-    def __init__(self, study: StudyModel, params: list[TensorDictBase] | None = None) -> None:
-        model = DynamicsModel(**study.model_config)
-        model.load_state_dict(study.members[0])
-        self.study = study
-        self.planner = build_planner(ImaginedNavigationEnv(make_world_model(model)), study.planner, study.n_actions)
-        self.env_config, self.K, self.n_actions = study.env_config(), study.K, study.n_actions
-        self.set_parameters(params)
-
-    def set_parameters(self, params: list[TensorDictBase] | None) -> None:
-        """Plan with ``params`` (every member's; ``None``: the first member's own weights)."""
-        self.planner.params = params
-
-    def __call__(self, td: TensorDictBase) -> TensorDictBase:
-        return self.planner(td)
+    """The history window (steps) a finished study's model reads in ``town`` (:meth:`FinishedStudy.history`), its
+    refusals as :class:`PlayError`."""
+    with study_errors():
+        return FinishedStudy.open(study_dir).history(town)
 
 
 def study_policy(study_dir: str | Path, town: str, tau_trajectories: TensorDictBase | Sequence[TensorDictBase] | None
-                 = None, learner: str = "adapt", seed: int = 0) -> tuple[StudyPolicy, dict[str, Any]]:
-    """The study's MPC policy for ``town`` adapted to a person on ``tau_trajectories`` (their explore drive(s),
-    e.g. :func:`~pernav.trainer.drives.load_drive`; ``None``: the meta model unadapted), and what it is.
-
-    >>> policy, info = study_policy("runs/smoke", "Town1", load_drive("me/tau.pt"))      # doctest: +SKIP
-    >>> info["adapted"], info["planner"]["kind"], policy.env_config["future_steps"]     # doctest: +SKIP
-    (True, 'retime', 18)
-    """
-    study = load_study(study_dir, town, learner)
-    drives = [] if tau_trajectories is None else (
-        [tau_trajectories] if isinstance(tau_trajectories, TensorDictBase) else list(tau_trajectories))
-    trainer = study.trainer(seed=seed)
-    params = adapted_parameters(study, trainer, drives, seed)
-    policy = StudyPolicy(study, params)
-    info = {"study": str(study.folder), "town": town, "learner": learner, "members": len(study.members),
-            "adapted": bool(drives) and study.meta,
-            "adaptation": ("personal_updates" if study.train.personal_updates else "U") if drives and study.meta else None,
-            "tau_steps": [int(d.shape[0]) for d in drives], "planner": {"kind": "retime", **study.planner},
-            "env_config": dict(policy.env_config), "K": policy.K}
-    return policy, info
-
-
-# ----- Algorithm 1 with a person -------------------------------------------------------------------------------
-@dataclass
-class PersonalResult:
-    """A session's drives (one record per drive: its metrics, round, policy, file) and the summary table."""
-
-    drives: list[dict[str, Any]]
-    summary: dict[str, Any]
-    folder: Path | None
-    interrupted: bool
-    ctrl_c: bool = False  # the session was stopped by Ctrl-C (the command line exits 130)
-
-
-def _policy_row(drives: list[dict[str, Any]]) -> dict[str, Any]:
-    n = len(drives)
-    return {"drives": n,
-            "tracking_cost_mean": round(sum(d["tracking_cost"] for d in drives) / n, 2) if n else None,
-            "vehicle_collisions": sum(d["vehicle_collisions"] for d in drives),
-            "kerb_strikes": sum(d["edge_strikes"] for d in drives),
-            "missed_turns": sum(d["missed_turns"] for d in drives),
-            "completed": sum(bool(d["completed"]) for d in drives),
-            "completion": round(sum(bool(d["completed"]) for d in drives) / n, 4) if n else None}
+                 = None, learner: str = "adapt", seed: int = 0) -> tuple[Any, dict[str, Any]]:
+    """The policy of ``learner`` in ``town`` adapted to a person on ``tau_trajectories`` and what it is
+    (:meth:`FinishedStudy.policy`), its refusals as :class:`PlayError`."""
+    with study_errors():
+        return FinishedStudy.open(study_dir).policy(learner, town, tau_trajectories, seed=seed)
 
 
 def summarize_drives(drives: list[dict[str, Any]]) -> dict[str, Any]:
     """Per policy over the paired rounds' whole drives (a quit drive is recorded but not counted): drives, mean
     tracking cost, vehicle collisions, kerb strikes, missed turns, completed; and the mean paired difference
-    (adapted - explore) of the tracking cost over the routes driven whole with both."""
+    (adapted - explore) of the tracking cost over the routes driven whole with both.
+
+    >>> print(summary_markdown(summarize_drives([])).splitlines()[2])
+    | adapted | 0 | - | 0 | 0 | 0 | 0/0 |
+    """
     whole = [d for d in drives if d["round"] > 0 and not d["interrupted"]]
-    policies = {name: _policy_row([d for d in whole if d["policy"] == name]) for name in POLICY_NAMES}
+    policies = {name: policy_row([d for d in whole if d["policy"] == name]) for name in POLICY_NAMES}
     by_round: dict[int, dict[str, float]] = {}
     for d in whole:
         by_round.setdefault(d["round"], {})[d["policy"]] = d["tracking_cost"]
@@ -277,66 +105,30 @@ def summarize_drives(drives: list[dict[str, Any]]) -> dict[str, Any]:
             "paired_cost_difference_mean": round(sum(pairs) / len(pairs), 2) if pairs else None}
 
 
-def summary_markdown(summary: dict[str, Any]) -> str:
-    """The summary's table in Markdown.
-
-    >>> print(summary_markdown(summarize_drives([])).splitlines()[2])
-    | adapted | 0 | - | 0 | 0 | 0 | 0/0 |
-    """
-    lines = ["| policy | drives | mean tracking cost | vehicle collisions | kerb strikes | missed turns | completed |",
-             "|---|---|---|---|---|---|---|"]
-    for name, row in summary["policies"].items():
-        cost = "-" if row["tracking_cost_mean"] is None else f"{row['tracking_cost_mean']:.0f}"
-        lines.append(f"| {name} | {row['drives']} | {cost} | {row['vehicle_collisions']} | {row['kerb_strikes']} | "
-                     f"{row['missed_turns']} | {row['completed']}/{row['drives']} |")
-    if summary.get("beliefs"):  # a belief session: where the belief stood after each drive
-        from pernav.play.believe import belief_markdown
-
-        lines += ["", belief_markdown(summary)]
-    if summary.get("paired_routes"):
-        lines.append("")
-        lines.append(f"Paired routes: {summary['paired_routes']}; mean tracking cost difference (adapted - explore): "
-                     f"{summary['paired_cost_difference_mean']:+.0f} (negative: the adapted policy did better).")
-    return "\n".join(lines)
-
-
-class PersonalSession:
+class PersonalSession(Session):
     """Algorithm 1 with a person: tau on ``routes[0]`` with explore, then every next route driven with the adapted
     MPC policy and with explore in a hidden random order, FTML updates and re-adaptation after every round.
 
-    ``controls``: ``None`` (the scripted bot, a fresh one per drive), controls to reuse for every drive (a
-    joystick), or a zero-argument factory called once per drive after its window is open (``KeyboardControls``).
-    ``updates``: meta updates after each round (default: the study's ``train.updates``, at most :data:`UPDATES`).
-    ``announce`` is called with a neutral line before each drive ("Drive 2 of 5: Town1 route 3") and after it (how
-    it went, not with which policy), ``ready`` after the announcement (e.g. waits for the person to press Enter);
-    ``window``, ``speaker``, ``countdown``, ``hide_cost`` and ``notice`` as :class:`PlaySession` (one window for
-    the session: "Drive n of N" on each drive, the learning's wait between drives, the end until Enter;
-    ``calibrate``: a wheel's calibration screen before the first drive). ``record_dir``
-    must not hold another session, unless ``resume`` (then it must hold one, run with the same settings).
+    The arguments are :class:`~pernav.play.sessions.Session`'s. Its options
+    (:class:`~pernav.play.sessions.SessionOptions`): ``learner`` the study's model learner (default ``adapt``);
+    ``updates`` the meta updates after each round (default: the study's ``train.updates``, at most
+    :data:`UPDATES`); ``record_dir`` must not hold another session, unless ``resume`` (then it must hold one, run
+    with the same settings).
 
-    >>> session = PersonalSession("runs/smoke", "Town1", [0, 3, 5], seed=1)   # doctest: +SKIP
-    >>> session.order                                                          # doctest: +SKIP
+    >>> session = PersonalSession("runs/smoke", "Town1", [0, 3, 5], options=SessionOptions(seed=1))  # doctest: +SKIP
+    >>> session.order                                                                               # doctest: +SKIP
     [('explore', 'adapted'), ('adapted', 'explore')]
     """
 
-    def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
-                 context: dict | None = None, controls: Any = None, seed: int = 0, record_dir: str | Path | None = None,
-                 n_traffic: int = 8, updates: int | None = None, learner: str = "adapt", window: bool = False,
-                 speaker: Any = None, announce: Callable[[str], None] | None = None,
-                 ready: Callable[[], None] | None = None, progress: bool = True, resume: bool = False,
-                 countdown: float = 3.0, hide_cost: bool = False, notice: str | None = None,
-                 calibrate: bool = False) -> None:
-        routes = list(routes)
+    def _open(self, study_dir: str | Path) -> None:
+        """Check the options, open the record folder and the study's model, and resume an interrupted session."""
+        options, town = self.options, self.town
+        updates, seed = options.updates, options.seed
         if updates is not None and updates < 0:
             raise PlayError(f"updates must be >= 0, got {updates}")
-        self.record_dir = check_session(town, routes, seed, record_dir, resume)
-        self.study = load_study(study_dir, town, learner)
-        self.town, self.routes, self.seed = town, routes, int(seed)
-        self.user, self.context, self.n_traffic = user, context, int(n_traffic)
-        self.controls, self.window, self.speaker = controls, window, speaker
-        self.announce = announce or (lambda line: None)
-        self.ready = ready or (lambda: None)
-        self.progress = progress
+        self.record_dir = check_session(town, self.routes, seed, options.record_dir, options.resume)
+        with study_errors():
+            self.study = FinishedStudy.open(study_dir).model(town, options.learner or "adapt")
         self.updates = min(self.study.train.updates, UPDATES) if updates is None else int(updates)
         # the person's rounds: round 0 holds tau; round t its two drives, the explore one as its tau
         self.buffers = RoundBuffers(L=self.study.train.L, seed=derive_seed(seed, town, "personal", "buffers"))
@@ -344,17 +136,11 @@ class PersonalSession:
         self.policy = StudyPolicy(self.study)
         self.params: list[TensorDictBase] | None = None  # adapted on the latest tau (set after round 0)
         self.adapted_on: int | None = None  # the round whose tau self.params are adapted on
-        self.drives: list[dict[str, Any]] = []
         self.meta_losses: list[float] = []
-        self.countdown, self.hide_cost, self.notice, self.calibrate = countdown, hide_cost, notice, calibrate
-        self.learned: list[int] = []  # rounds whose drives the model has learned from
-        self.learn_s: float | None = None  # how long the last round's learning took (the next wait's estimate)
-        self.screens = SessionWindow(town, False)  # the session's window, opened by run()
-        self.ctrl_c = False
         self._first_drive = True  # the calibration screen comes before it
         self._trajectories: dict[tuple[int, str], TensorDictBase] = {}  # (round, label) -> whole drive of this run
-        self.resumed = resume
-        if resume:
+        self.resumed = options.resume
+        if options.resume:
             self._restore()
 
     @property
@@ -366,33 +152,17 @@ class PersonalSession:
             out.append(POLICY_NAMES if first_adapted else POLICY_NAMES[::-1])
         return out
 
-    def _controls(self) -> Any:
-        """This drive's controls: a fresh bot, the controls given, or a new one from the factory given."""
-        if self.controls is None:
-            return ScriptedControls()
-        if hasattr(self.controls, "read") and not isinstance(self.controls, type):
-            return self.controls
-        return self.controls()  # a factory: keyboard controls need the drive's window open
-
     def _drive(self, round_: int, route: int, policy_name: str, label: str, number: int, total: int
                ) -> PlayResult:
         """One drive, recorded at once; both drives of a round share the world's seed (same traffic, same luck)."""
         title = f"Drive {number} of {total}: {self.town} route {route}"
-        self.announce(title)
-        self.ready()
         policy = self.policy if policy_name == "adapted" else "explore"
-        self.screens.waiting(title, None)
-        session = PlaySession(self.town, route, self.user, context=self.context, policy=policy,
-                              seed=derive_seed(self.seed, self.town, "drive", round_), n_traffic=self.n_traffic,
-                              window=self.window, speaker=self.speaker, K=self.study.K,
-                              # adapt_speed's drives choose the playback speed too (21 actions); explore's do not
-                              env_config=self.study.env_config(None if policy_name == "adapted" else 7),
-                              title=title, countdown=self.countdown, hide_cost=self.hide_cost, notice=self.notice,
-                              calibrate=self.calibrate and self._first_drive, progress=f"Drive {number} of {total}",
-                              view=self.screens.view)
+        # adapt_speed's drives choose the playback speed too (each instruction at each speed); explore's do not
+        options = PlayOptions(seed=derive_seed(self.seed, self.town, "drive", round_), K=self.study.K,
+                              env_config=self.study.env_config(None if policy_name == "adapted" else N_INSTRUCTIONS),
+                              calibrate=self.calibrate and self._first_drive, progress=f"Drive {number} of {total}")
         self._first_drive = False
-        session.controls = self._controls()
-        result = session.run()
+        result = self._play(route, policy, title, options)
         m = result.metrics
         record = {**m, "policy": policy_name, "round": round_, "label": label, "tau": round_ == 0 or policy_name
                   == "explore", "adapted_on_round": self.adapted_on if policy_name == "adapted" else None,
@@ -404,11 +174,8 @@ class PersonalSession:
             self._trajectories[round_, label] = result.trajectory
         self.drives.append(record)
         self._save_progress()
-        state = "stopped" if m["interrupted"] else ("arrived" if m.get("completed") else "did not arrive")
-        cost = "" if self.hide_cost else f"tracking cost {m.get('tracking_cost', 0):.0f}, "  # not with --hide-cost
-        self.announce(f"  {state} after {m.get('time', 0):.0f} s: {cost}"
-                      f"vehicle collisions {m.get('vehicle_collisions', 0)}, kerb strikes {m.get('edge_strikes', 0)}, "
-                      f"missed turns {m.get('missed_turns', 0)}")
+        self._tell(m, (("vehicle collisions", "vehicle_collisions"), ("kerb strikes", "edge_strikes"),
+                       ("missed turns", "missed_turns")))
         return result
 
     def _file_name(self, round_: int, route: int, label: str, stopped: bool) -> str:
@@ -425,12 +192,9 @@ class PersonalSession:
     def _learn(self, round_: int, tau: TensorDictBase, other: TensorDictBase | None = None) -> None:
         """Add the round's drives (``tau`` as its adaptation trajectory), take the meta updates on all rounds so
         far, and adapt the planner's parameters on this tau."""
-        import logging
-
-        from tqdm.auto import tqdm
-
         logging.getLogger("torchrl").setLevel(logging.WARNING)  # no note of every round's new storage
-        # a round's data in the learner's action space (explore's 7 actions re-encoded for adapt_speed's 21)
+        # a round's data in the learner's action space (explore's instructions re-encoded for adapt_speed's, each
+        # instruction at each playback speed)
         self.buffers.add(round_, in_action_space(tau, self.study.n_actions), tau=True)
         if other is not None:
             self.buffers.add(round_, in_action_space(other, self.study.n_actions))
@@ -440,8 +204,9 @@ class PersonalSession:
             self.screens.learning("the navigation is learning from your drives", started, estimate, last)
             self.meta_losses.extend(self.trainer.train(1, meta=self.study.meta))  # sysid: plain updates, as in its study
         self.screens.learning("the navigation is learning from your drives", started, estimate, last)
-        self.params = adapted_parameters(self.study, self.trainer, [tau],
-                                         derive_seed(self.seed, self.town, "personal", round_))
+        with study_errors():
+            self.params = adapted_parameters(self.study, self.trainer, [tau],
+                                             derive_seed(self.seed, self.town, "personal", round_))
         self.policy.set_parameters(self.params)
         self.adapted_on = round_
         self.learned.append(round_)
@@ -507,8 +272,9 @@ class PersonalSession:
                     self.buffers.add(r, in_action_space(other, self.study.n_actions))
             self.buffers.generator.set_state(state["buffers_generator"])
             last = learned[-1]
-            self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],
-                                             derive_seed(self.seed, self.town, "personal", last))
+            with study_errors():
+                self.params = adapted_parameters(self.study, self.trainer, [self._whole_trajectory(last, "explore")],
+                                                 derive_seed(self.seed, self.town, "personal", last))
             self.policy.set_parameters(self.params)
             self.adapted_on = last
         self.learned = learned
@@ -543,33 +309,25 @@ class PersonalSession:
         except (OSError, ValueError) as exc:
             raise PlayError(f"--resume: {' '.join(str(exc).split())}") from None
 
-    def run(self) -> PersonalResult:
-        """Drive the rounds (a resumed session: from its first drive not yet whole); stops early when the person
-        quits or on Ctrl-C. Writes the summary with what was driven."""
+    def _drive_all(self) -> bool:
+        """Drive the rounds (a resumed session: from its first drive not yet whole), learning after each; True when
+        the person stopped a drive (or Ctrl-C)."""
         total = 1 + 2 * (len(self.routes) - 1)
-        interrupted = False
         self._first_drive = True
-        with SessionWindow(self.town, self.window) as self.screens:  # closed at the end, whatever happens
-            try:
-                for round_ in range(len(self.routes)):
-                    for r, route, name, label, number in self._slots():
-                        if r != round_ or self._whole(r, label) is not None:
-                            continue
-                        result = self._drive(r, route, name, label, number, total)
-                        self.ctrl_c = self.ctrl_c or result.ctrl_c
-                        if result.metrics["interrupted"] or result.ctrl_c:
-                            interrupted = True
-                            break
-                    if interrupted:
-                        break
-                    if round_ not in self.learned:  # (after the last round too: model.pt keeps what all drives taught)
-                        self._learn(round_, self._whole_trajectory(round_, "explore"),
-                                    self._whole_trajectory(round_, "adapted"))
-            except KeyboardInterrupt:
-                interrupted = self.ctrl_c = True
-            return self._finish(interrupted)
+        for round_ in range(len(self.routes)):
+            for r, route, name, label, number in self._slots():
+                if r != round_ or self._whole(r, label) is not None:
+                    continue
+                result = self._drive(r, route, name, label, number, total)
+                self.ctrl_c = self.ctrl_c or result.ctrl_c
+                if result.metrics["interrupted"] or result.ctrl_c:
+                    return True
+            if round_ not in self.learned:  # (after the last round too: model.pt keeps what all drives taught)
+                self._learn(round_, self._whole_trajectory(round_, "explore"), self._whole_trajectory(round_, "adapted"))
+        return False
 
     def _finish(self, interrupted: bool) -> PersonalResult:
+        """The summary of what was driven, written; the end screen (not after Ctrl-C)."""
         summary = {"study": str(self.study.folder), "town": self.town, "routes": self.routes, "seed": self.seed,
                    "user": self.user if isinstance(self.user, str) else "custom", "learner": self.study.learner,
                    "updates_per_round": self.updates, "interrupted": interrupted,
@@ -581,14 +339,7 @@ class PersonalSession:
                                                  "interrupted", "file") if k in d}
                               for d in self.drives]}
         if self.record_dir is not None and any(d["file"] for d in self.drives):
-            atomic_write(self.record_dir / "summary.json", lambda p: p.write_text(json.dumps(summary, indent=2)))
-            atomic_write(self.record_dir / "summary.md", lambda p: p.write_text(
-                f"# Personalization: {self.town}, routes {self.routes}, seed {self.seed}\n\n"
-                f"{summary_markdown(summary)}\n"))
-        if not self.ctrl_c:  # stopped at the terminal (Ctrl-C): no screen waits for the person
-            whole = sum(not d["interrupted"] for d in self.drives)
-            self.ctrl_c = self.screens.finish(self._controls, whole, len(self._slots()), interrupted)
-        if self.speaker is not None and hasattr(self.speaker, "close"):
-            self.speaker.close()
+            self._write_summary(summary, "Personalization")
+        self._end(sum(not d["interrupted"] for d in self.drives), len(self._slots()), interrupted)
         return PersonalResult(list(self.drives), summary, self.record_dir, interrupted, self.ctrl_c)
 

@@ -322,7 +322,8 @@ class FinishedStudy:
             belief: Any = tracker
             fields_now = tracker.fields()
         else:
-            belief = fields_now = self.timing_model(town).belief(drives[-1]) if drives else {}
+            model = self.timing_model(town)  # (refused for a study that did not run it, with or without tau)
+            belief = fields_now = model.belief(drives[-1]) if drives else {}
         info = {"study": str(self.folder), "town": town, "learner": learner, "adapted": bool(drives),
                 "tau_steps": [int(d.shape[0]) for d in drives], "belief": dict(fields_now)}
         return RetimedPolicy(learner, belief), info

@@ -1,5 +1,5 @@
-"""`pernav personalize --learner belief`, headless: the scripted bot drives, on a study that ran the belief learner
-alone (one offline and one online round, four offline drivers)."""
+"""`pernav personalize --learner belief`, headless: the scripted bot drives, on a study that ran the learners that
+re-time explore's rule (one offline and one online round, four offline drivers)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,14 @@ import os
 
 import pytest
 import torch
+from play_helpers import retimed_study
 
 from pernav.cli import main
 from pernav.learners.belief import ReactionBelief
 from pernav.play.believe import BeliefSession, belief_markdown, prompt_lead, session_class
 from pernav.play.loop import PlayError
 from pernav.play.personal import PersonalSession
+from pernav.play.sessions import SessionOptions
 from pernav.trainer.drives import load_drive
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
@@ -22,21 +24,17 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 @pytest.fixture(scope="module")
 def belief_study(tmp_path_factory):
-    from pernav.study import preset, run_study
-
-    cfg = preset("smoke")
-    cfg.methods, cfg.schedule, cfg.calibration = ["explore", "belief"], cfg.schedule[:2], 0
-    out = tmp_path_factory.mktemp("belief_study")
-    run_study(cfg, out, report=False)
-    return out
+    """explore, timing and belief (:func:`play_helpers.retimed_study`; the belief learner is the same without
+    timing)."""
+    return retimed_study(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
 def session(belief_study, tmp_path_factory):
     lines: list[str] = []
     record = tmp_path_factory.mktemp("believe") / "me"
-    s = BeliefSession(belief_study, "Town1", [0, 1, 2], user="user3", seed=0, record_dir=record, n_traffic=1,
-                      announce=lines.append)
+    options = SessionOptions(seed=0, record_dir=record, n_traffic=1)
+    s = BeliefSession(belief_study, "Town1", [0, 1, 2], user="user3", announce=lines.append, options=options)
     return s, s.run(), lines, record
 
 
@@ -67,7 +65,8 @@ def test_the_session_keeps_its_drives_and_the_posterior(session):
 
 def test_hide_cost_keeps_the_cost_out_of_what_the_person_is_told(belief_study):
     lines: list[str] = []
-    BeliefSession(belief_study, "Town1", [0, 1], n_traffic=0, announce=lines.append, hide_cost=True).run()
+    options = SessionOptions(n_traffic=0, hide_cost=True)
+    BeliefSession(belief_study, "Town1", [0, 1], announce=lines.append, options=options).run()
     assert any("arrived" in line or "did not arrive" in line for line in lines)
     assert not any("cost" in line for line in lines)
 
@@ -136,11 +135,11 @@ def test_a_windowed_belief_session_keeps_one_window_and_ends_with_thanks(belief_
     import pygame
     from play_helpers import watch_session_window
 
-    import pernav.play.believe as believe
     from pernav.play.screens import CLOSING, FINISHED, WAITING
 
-    seen = watch_session_window(monkeypatch, believe)
-    result = BeliefSession(belief_study, "Town1", [0, 1], n_traffic=0, window=True, hide_cost=True).run()
+    seen = watch_session_window(monkeypatch)
+    options = SessionOptions(n_traffic=0, window=True, hide_cost=True)
+    result = BeliefSession(belief_study, "Town1", [0, 1], options=options).run()
     assert not result.interrupted and len(result.drives) == 2
     (first, _), (second, _) = seen["views"]
     assert first is second and first.window and not pygame.display.get_init()

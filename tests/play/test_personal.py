@@ -6,38 +6,30 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from dataclasses import replace
 
 import pytest
 import torch
+from play_helpers import PLANNER, K, model_study
 
 from pernav.cli import main
 from pernav.model.adapt import meta_parameters
 from pernav.planner.factory import env_planning_config
 from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayError, PlaySession
-from pernav.play.personal import POLICY_NAMES, PersonalSession, StudyPolicy, load_study, study_policy, summary_markdown
+from pernav.play.loop import PlayError, PlayOptions, PlaySession
+from pernav.play.personal import POLICY_NAMES, PersonalSession, study_policy, summary_markdown
+from pernav.play.sessions import SessionOptions
+from pernav.study.finished import FinishedStudy, StudyError, StudyPolicy
 from pernav.trainer.drives import load_drive, read_metrics
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
-PLANNER = {"kind": "retime", "horizon": 8, "advance": 4}  # not the defaults: the env must follow the study
-K = 3  # nor is this history window
-
 
 @pytest.fixture(scope="module")
 def study_dir(tmp_path_factory):
-    """A finished study in seconds: smoke's model, one offline and one online round, adapt and adapt_speed, U on
-    tau."""
-    from pernav.study import preset, run_study
-
-    cfg = preset("smoke")
-    cfg.methods, cfg.schedule, cfg.calibration = ["adapt", "adapt_speed"], cfg.schedule[:2], 0
-    cfg.train.personal_updates, cfg.train.K, cfg.train.warm_updates = 0, K, 10
-    cfg.planner = dict(PLANNER)
-    out = tmp_path_factory.mktemp("study")
-    run_study(cfg, out, report=False)
-    return out
+    """A finished study in seconds (:func:`play_helpers.model_study`: adapt and adapt_speed, PLANNER, K)."""
+    return model_study(tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +37,8 @@ def session(study_dir, tmp_path_factory):
     """tau on route 0, then route 1 with both policies; two meta updates after each round."""
     lines: list[str] = []
     record = tmp_path_factory.mktemp("personal") / "me"
-    s = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
-                        announce=lines.append, progress=False)
+    options = SessionOptions(seed=0, record_dir=record, n_traffic=1, updates=2, progress=False)
+    s = PersonalSession(study_dir, "Town1", [0, 1], announce=lines.append, options=options)
     return s, s.run(), lines
 
 
@@ -100,7 +92,7 @@ def test_prompts_and_announcements_do_not_tell_the_policy(session):
 
 def test_meta_model_learns_and_adapted_parameters_differ(session, study_dir):
     s, _, _ = session
-    study = load_study(study_dir, "Town1")
+    study = FinishedStudy.open(study_dir).model("Town1")
     changed = [any(not torch.equal(m.model.state_dict()[k], state[k]) for k in state)
                for m, state in zip(s.trainer.members, study.members, strict=True)]
     assert all(changed)  # every member took the FTML updates on the person's drives
@@ -114,8 +106,9 @@ def test_meta_model_learns_and_adapted_parameters_differ(session, study_dir):
 
 def test_order_is_random_but_reproducible(study_dir):
     routes = list(range(10))
-    orders = {seed: PersonalSession(study_dir, "Town1", routes, seed=seed).order for seed in range(4)}
-    assert orders[0] == PersonalSession(study_dir, "Town1", routes, seed=0).order
+    orders = {seed: PersonalSession(study_dir, "Town1", routes, options=SessionOptions(seed=seed)).order
+              for seed in range(4)}
+    assert orders[0] == PersonalSession(study_dir, "Town1", routes, options=SessionOptions(seed=0)).order
     assert all(sorted(o) == sorted(POLICY_NAMES) for order in orders.values() for o in order)
     assert len({tuple(o) for o in orders[0]}) == 2  # both orders occur over the routes
     assert len({tuple(order) for order in orders.values()}) > 1  # and the seed changes them
@@ -127,7 +120,8 @@ def test_adapted_policy_plans_on_the_studys_env(study_dir, session):
     assert info["adapted"] and info["adaptation"] == "U" and info["K"] == K and info["members"] == 2
     assert policy.env_config == {"adaptive_speed": False, **env_planning_config(PLANNER)}
     assert (policy.planner.horizon, policy.planner.advance) == (8, 4)
-    play = PlaySession("Town1", 2, policy=policy, n_traffic=1)  # takes K and the planning context from the policy
+    # the drive takes K and the planning context from the policy
+    play = PlaySession("Town1", 2, policy=policy, options=PlayOptions(n_traffic=1))
     assert play.nav.config["future_steps"] == 12 and play.env.transform.K == K
     result = play.run(max_steps=4)
     actions = result.trajectory["action"].reshape(-1)
@@ -137,7 +131,7 @@ def test_adapted_policy_plans_on_the_studys_env(study_dir, session):
     a, b = policy.planner.params[0], unadapted.planner.params[0]
     assert any(not torch.equal(a[k], b[k]) for k in a.keys(True, True))
     with pytest.raises(PlayError, match="history of 5 steps"):
-        study_policy(study_dir, "Town1", PlaySession("Town1", 0, n_traffic=0).run(max_steps=3).trajectory)
+        study_policy(study_dir, "Town1", PlaySession("Town1", 0, options=PlayOptions(n_traffic=0)).run(3).trajectory)
 
 
 def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
@@ -148,8 +142,8 @@ def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
         return made[-1]
 
     record = tmp_path / "me"
-    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, record_dir=record, n_traffic=0,
-                             updates=1, progress=False).run()
+    options = SessionOptions(record_dir=record, n_traffic=0, updates=1, progress=False)
+    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, options=options).run()
     assert result.interrupted and len(result.drives) == 2 and result.drives[1]["interrupted"]
     assert all(load_drive(d["file"]).shape[0] == d["steps"] for d in result.drives)
     summary = json.loads((record / "summary.json").read_text())
@@ -161,18 +155,17 @@ def test_a_windowed_session_keeps_one_window_shows_the_wait_and_the_end(study_di
     import pygame
     from play_helpers import watch_session_window
 
-    import pernav.play.personal as personal
     from pernav.play.screens import STOPPED, WAITING
 
-    seen = watch_session_window(monkeypatch, personal)
+    seen = watch_session_window(monkeypatch)
     made = []
 
     def controls():  # the person stops two seconds into their second drive; the third: the end screen's
         made.append(ScriptedControls(quit_after=20 if len(made) == 1 else None))
         return made[-1]
 
-    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, n_traffic=0, updates=1, progress=False,
-                             window=True, hide_cost=True).run()
+    options = SessionOptions(n_traffic=0, updates=1, progress=False, window=True, hide_cost=True)
+    result = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, options=options).run()
     assert result.interrupted and len(result.drives) == 2 and len(made) == 3
     (first, open1), (second, open2) = seen["views"]
     assert first is second and first.window and open1 and open2  # one window, open across the drives
@@ -186,20 +179,24 @@ def test_a_windowed_session_keeps_one_window_shows_the_wait_and_the_end(study_di
 
 
 def test_bad_study_folders(study_dir, tmp_path):
-    with pytest.raises(PlayError, match="no study folder"):
-        load_study(tmp_path / "none", "Town1")
+    with pytest.raises(StudyError, match="no study folder"):
+        FinishedStudy.open(tmp_path / "none")
+    with pytest.raises(PlayError, match="no study folder"):  # a session says the study's words as its own
+        PersonalSession(tmp_path / "none", "Town1", [0, 1])
     unfinished = tmp_path / "unfinished"
     shutil.copytree(study_dir, unfinished)
     (unfinished / "results.json").unlink()
-    with pytest.raises(PlayError, match="not finished"):
-        load_study(unfinished, "Town1")
+    with pytest.raises(StudyError, match="not finished"):
+        FinishedStudy.open(unfinished)
+    with pytest.raises(StudyError, match="not in the study"):
+        FinishedStudy.open(study_dir).model("Town1", learner="sysid")
     with pytest.raises(PlayError, match="not in the study"):
-        load_study(study_dir, "Town1", learner="sysid")
+        PersonalSession(study_dir, "Town1", [0, 1], options=SessionOptions(learner="sysid"))
     taken = tmp_path / "taken"
     taken.mkdir()
     (taken / "summary.json").write_text("{}")
     with pytest.raises(PlayError, match="already holds"):
-        PersonalSession(study_dir, "Town1", [0, 1], record_dir=taken)
+        PersonalSession(study_dir, "Town1", [0, 1], options=SessionOptions(record_dir=taken))
     assert isinstance(study_policy(study_dir, "Town1")[0], StudyPolicy)
 
 
@@ -260,8 +257,9 @@ def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, ca
 
 
 def test_adapt_speed_chooses_playback_and_learns_in_its_action_space(study_dir, tmp_path, capsys):
-    s = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=tmp_path / "me", n_traffic=1, updates=1,
-                        learner="adapt_speed", progress=False)
+    options = SessionOptions(seed=0, record_dir=tmp_path / "me", n_traffic=1, updates=1, learner="adapt_speed",
+                             progress=False)
+    s = PersonalSession(study_dir, "Town1", [0, 1], options=options)
     result = s.run()
     assert not result.interrupted and result.summary["learner"] == "adapt_speed"
     drives = {d["policy"]: load_drive(d["file"]) for d in result.drives[1:]}
@@ -288,7 +286,8 @@ def test_a_sysid_session_trains_plainly_and_plans_unadapted(tmp_path, monkeypatc
     cfg = preset("smoke")
     cfg.methods, cfg.schedule, cfg.calibration, cfg.train.warm_updates = ["sysid"], cfg.schedule[:2], 0, 10
     run_study(cfg, tmp_path / "study", report=False)
-    s = PersonalSession(tmp_path / "study", "Town1", [0, 1], n_traffic=0, updates=2, learner="sysid", progress=False)
+    options = SessionOptions(n_traffic=0, updates=2, learner="sysid", progress=False)
+    s = PersonalSession(tmp_path / "study", "Town1", [0, 1], options=options)
     flags: list[bool] = []
     train = s.trainer.train
     monkeypatch.setattr(s.trainer, "train", lambda n, meta: flags.append(meta) or train(n, meta=meta))
@@ -316,20 +315,19 @@ def test_a_session_killed_after_drive_2_resumes_with_its_tau_and_drives(session,
             made[-1].poll = killed
         return made[-1]
 
-    first = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
-                            controls=controls, progress=False)
+    options = SessionOptions(seed=0, record_dir=record, n_traffic=1, updates=2, progress=False)
+    first = PersonalSession(study_dir, "Town1", [0, 1], controls=controls, options=options)
     with pytest.raises(Killed):
         first.run()
     assert not (record / "summary.json").exists()  # killed: no summary
     tau_file = record / "round00-route0-tau.pt"
     tau_bytes, second_bytes = tau_file.read_bytes(), (record / "round01-route1-drive1.pt").read_bytes()
     with pytest.raises(PlayError, match="already holds a personalization session.*--resume"):
-        PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2)
+        PersonalSession(study_dir, "Town1", [0, 1], options=replace(options, progress=True))
     with pytest.raises(PlayError, match="was run with seed 0, not 1"):
-        PersonalSession(study_dir, "Town1", [0, 1], seed=1, record_dir=record, n_traffic=1, updates=2, resume=True)
+        PersonalSession(study_dir, "Town1", [0, 1], options=replace(options, seed=1, resume=True))
     lines: list[str] = []
-    resumed = PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2,
-                              resume=True, announce=lines.append, progress=False)
+    resumed = PersonalSession(study_dir, "Town1", [0, 1], announce=lines.append, options=replace(options, resume=True))
     assert [d["label"] for d in resumed.drives] == ["tau", "drive1"] and resumed.learned == [0]
     result = resumed.run()
     assert not result.interrupted and [line for line in lines if line.startswith("Drive")] == [
@@ -344,7 +342,7 @@ def test_a_session_killed_after_drive_2_resumes_with_its_tau_and_drives(session,
             torch.testing.assert_close(value, b.model.state_dict()[key])
     assert result.summary["resumed"] and json.loads((record / "summary.json").read_text())["paired_routes"] == 1
     with pytest.raises(PlayError, match="is complete; nothing to resume"):
-        PersonalSession(study_dir, "Town1", [0, 1], seed=0, record_dir=record, n_traffic=1, updates=2, resume=True)
+        PersonalSession(study_dir, "Town1", [0, 1], options=replace(options, resume=True, progress=True))
 
 
 def test_cli_personalize_ctrl_c_keeps_the_drive_in_progress_and_exits_130(study_dir, tmp_path, capsys, monkeypatch):
@@ -388,9 +386,9 @@ def test_cli_personalize_refusals_before_anyone_drives(args, words, study_dir, t
 def test_cli_play_refuses_a_tau_of_another_town_or_history(study_dir, tmp_path, capsys):
     from pernav.trainer.drives import save_drive
 
-    other = PlaySession("Town2", 0, n_traffic=0, K=K).run(max_steps=3)
+    other = PlaySession("Town2", 0, options=PlayOptions(n_traffic=0, K=K)).run(max_steps=3)
     town2 = save_drive(other.trajectory, other.metrics, tmp_path, "town2")
-    five = PlaySession("Town1", 0, n_traffic=0, K=5).run(max_steps=3)
+    five = PlaySession("Town1", 0, options=PlayOptions(n_traffic=0, K=5)).run(max_steps=3)
     k5 = save_drive(five.trajectory, five.metrics, tmp_path, "k5")
     base = ["play", "--policy", "study", "--study", str(study_dir), "--headless", "--no-audio",
             "--record", str(tmp_path / "rec")]
