@@ -1,6 +1,6 @@
 """``pernav bench play --live``: the play loop's frame time in a window paced to real time, as a person sees it.
 
-The off-screen benchmark (:func:`pernav.bench.bench_play`) draws as fast as it goes; a person's drive also shows
+The off-screen benchmark (:func:`pernav.cli.bench.bench_play`) draws as fast as it goes; a person's drive also shows
 each picture in a real window, sleeps until each picture's due time and handles the window's events. Here each view
 is driven by the scripted bot in a window (``PlayOptions(window=True, realtime=True, ready=False)``) for a fixed
 number of world frames, and per world frame two figures are kept: its compute and drawing time

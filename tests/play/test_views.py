@@ -61,7 +61,7 @@ def _draw(name: str, town, frame: Frame, fog: Fog | None = None) -> np.ndarray:
 
 
 def test_chase_view_bends_a_left_turn_to_the_left():
-    """Heading south, 'turn left' goes east: the north-up map shows it bending right (the issue); the chase view,
+    """Heading south, 'turn left' goes east: the north-up map shows it bending right (the trouble with it); the chase view,
     heading up, shows it bending left of the car's column."""
     town, frame = _approach("left", 90.0)
     car_x, car_y = SIZE[0] / 2, CHASE_ANCHOR * SIZE[1]
