@@ -20,12 +20,12 @@ def _doc_blocks() -> list[str]:
     return re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
 
 
-@pytest.mark.parametrize("index", range(8))
+@pytest.mark.parametrize("index", range(9))
 def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch, capfd) -> None:
     """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it):
     it writes nothing into the current folder and prints only what it prints itself (no library chatter)."""
     blocks = _doc_blocks()
-    assert len(blocks) == 8  # a new example: add it to the range above
+    assert len(blocks) == 9  # a new example: add it to the range above
     monkeypatch.chdir(tmp_path)
     exec(compile(blocks[index], f"{DOCS.name}[block {index}]", "exec"), {"__name__": "__docs__"})  # noqa: S102
     assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -12,7 +12,7 @@ import shutil
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.envs import GymEnv, TransformedEnv
+from torchrl.envs import GymEnv, RenameTransform, TransformedEnv
 
 from pernav.model import DynamicsModel, ImaginedEnv, adapt
 from pernav.planner import DiscreteTreeSearchPlanner
@@ -55,8 +55,6 @@ def test_memory_and_memmap_storage_draw_the_same_windows(tmp_path) -> None:
 
 
 def test_a_sampling_transform_sees_every_window() -> None:
-    from torchrl.envs import RenameTransform
-
     buffers = _fill(RoundBuffers(L=3, seed=0, transform=RenameTransform(["observation"], ["state"])))
     windows = buffers.sample(1, 5)
     assert windows.shape == (5, 3) and "state" in windows.keys() and "observation" not in windows.keys()
