@@ -348,9 +348,20 @@ def test_no_two_files_import_each_other_even_through_others() -> None:
     assert not found, "move what these share into the module that owns it:\n" + "\n".join(map(str, found))
 
 
+def _said_why(lines: list[str], lineno: int) -> bool:
+    """Whether the import at ``lineno`` (1-based) carries a ``# lazy:`` comment: on its line, or on a line of the run
+    of imports and comments just above it (one comment may speak for a block of imports)."""
+    at = lineno - 1
+    while at >= 0 and (at == lineno - 1 or lines[at].strip().startswith(("#", "import ", "from "))):
+        if "# lazy:" in lines[at]:
+            return True
+        at -= 1
+    return False
+
+
 def late_imports(root: Path) -> list[str]:
-    """``file:line`` of each import inside a function or class of pernav without a ``# lazy: why`` comment on its line
-    (or the line above)."""
+    """``file:line`` of each import inside a function or class of pernav without a ``# lazy: why`` comment (on its
+    line, or above it in its block of imports)."""
     found = []
     for path in sorted((root / "pernav").rglob("*.py")):
         source = path.read_text(encoding="utf-8")
@@ -358,8 +369,7 @@ def late_imports(root: Path) -> list[str]:
         top, skip = {id(n) for n in tree.body}, _type_checking_only(tree)
         for node in ast.walk(tree):
             if isinstance(node, ast.Import | ast.ImportFrom) and id(node) not in top and id(node) not in skip:
-                said = lines[node.lineno - 1] + (lines[node.lineno - 2] if node.lineno > 1 else "")
-                if "# lazy:" not in said:
+                if not _said_why(lines, node.lineno):
                     found.append(f"{path.relative_to(root)}:{node.lineno}")
     return found
 

@@ -40,6 +40,7 @@ from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import DiscreteTreeSearchPlanner, RetimingPlanner, TreeSearchPlanner
 from pernav.play.livebench import bench_live
 from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 from pernav.study.config import preset
 from pernav.trainer.collect import drive, history_env
 from pernav.world.cost import tracking_cost
@@ -413,8 +414,9 @@ def bench_play(quick: bool = False, screenshots: str | None = None, live: bool =
     for camera, visual in PLAY_VIEWS:
         name = camera if visual == "normal" else f"{camera}_fog"
         shot = None if screenshots is None else Path(screenshots) / f"view_{name}.png"
-        session = PlaySession("Town3", 1, n_traffic=8, draw=True, realtime=False, screenshot=shot, screenshot_at=13.0,
-                              context={"camera": camera, "visual": visual})
+        session = PlaySession("Town3", 1, context={"camera": camera, "visual": visual},
+                              options=PlayOptions(n_traffic=8, draw=True, realtime=False, screenshot=shot,
+                                                  screenshot_at=13.0))
         pictures: list[float] = []
         draw = session.view.draw
 
@@ -430,7 +432,8 @@ def bench_play(quick: bool = False, screenshots: str | None = None, live: bool =
         out[f"{name}_picture_ms_median"], out[f"{name}_picture_ms_p95"] = _median_ms(pictures), _p95_ms(pictures)
         if session.shot is not None:
             out.setdefault("screenshots", []).append(str(session.shot))
-    bare = PlaySession("Town3", 1, n_traffic=8, draw=False, realtime=False).run(max_steps=steps).frame_stats()
+    bare = PlaySession("Town3", 1, options=PlayOptions(n_traffic=8, draw=False, realtime=False))
+    bare = bare.run(max_steps=steps).frame_stats()
     out["frame_without_drawing_ms_median"], out["frame_without_drawing_ms_p95"] = bare["median_ms"], bare["p95_ms"]
     # the slowest view's figures under the names this benchmark had before it had views
     names = [c if v == "normal" else f"{c}_fog" for c, v in PLAY_VIEWS]

@@ -24,8 +24,7 @@ from pernav.cli.common import (
     person_controls,
 )
 from pernav.play.believe import session_class
-from pernav.play.personal import summary_markdown
-from pernav.play.sessions import check_writable
+from pernav.play.sessions import SessionOptions, check_writable, summary_markdown
 
 
 def add_parser(sub: Any) -> None:
@@ -58,11 +57,12 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and args.record is None:
         raise UsageError("--resume needs --record DIR: the interrupted session's folder")
     record = args.record or str(Path("drives") / f"personal-{args.town}-{time.strftime('%Y%m%d-%H%M%S')}")
-    session = session_class(args.learner)(args.study, args.town, args.routes, args.user, context=context, seed=args.seed,
-                              record_dir=record, n_traffic=args.traffic, updates=args.updates,
-                              learner=args.learner, window=not args.headless, announce=print, resume=args.resume,
-                              countdown=args.countdown, hide_cost=args.hide_cost,
-                              calibrate=args.input == "joystick" and not args.no_calibration)
+    options = SessionOptions(seed=args.seed, record_dir=record, n_traffic=args.traffic, updates=args.updates,
+                             learner=args.learner, window=not args.headless, resume=args.resume,
+                             countdown=args.countdown, hide_cost=args.hide_cost,
+                             calibrate=args.input == "joystick" and not args.no_calibration)
+    session = session_class(args.learner)(args.study, args.town, args.routes, args.user, context, announce=print,
+                                          options=options)
     check_writable("--record", record)
     session.speaker, session.notice = open_speaker(args)
     if not args.headless:

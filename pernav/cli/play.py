@@ -27,13 +27,12 @@ from pernav.cli.common import (
     person_controls,
 )
 from pernav.play.loop import PlaySession
-from pernav.play.personal import study_history, study_policy
+from pernav.play.options import PLAY_POLICIES, PlayOptions
 from pernav.play.sessions import check_writable
 from pernav.study.config import preset
+from pernav.study.finished import FinishedStudy
 from pernav.trainer.drives import load_drive, read_metrics, save_drive
 from pernav.world.constants import PLAYBACK, TOWN_NAMES
-
-PLAY_POLICIES = ("explore", "oracle", "study")  # pernav.play.loop.POLICIES and a study's adapted model
 
 
 def add_parser(sub: Any) -> None:
@@ -83,7 +82,7 @@ def _study_policy(args: argparse.Namespace) -> tuple[object, dict] | None:
         if town != args.town:
             raise UsageError(f"--tau {args.tau!r} was recorded in {town}; this drive is in {args.town} (adapt on a "
                              f"drive of {args.town})")
-    return study_policy(args.study, args.town, tau, learner=learner, seed=args.seed)
+    return FinishedStudy.open(args.study).policy(learner, args.town, tau, seed=args.seed)
 
 
 def _history(args: argparse.Namespace) -> int:
@@ -92,7 +91,7 @@ def _history(args: argparse.Namespace) -> int:
     if args.history is not None and not 1 <= args.history <= 50:
         raise UsageError(f"--history must be in [1, 50], got {args.history}")
     if args.study is not None:
-        k = study_history(args.study, args.town)
+        k = FinishedStudy.open(args.study).history(args.town)
         if args.history is not None and args.history != k:
             raise UsageError(f"--history {args.history}: the study in {args.study!r} reads a history of {k} steps "
                              f"(leave --history out, or give --history {k})")
@@ -119,13 +118,13 @@ def run(args: argparse.Namespace) -> int:
         check_writable("--screenshot", Path(args.screenshot).parent)
     speaker, notice = open_speaker(args)  # before any window: a missing device asked for is an error
     controls = None if args.headless else person_controls(args)
-    session = PlaySession(args.town, args.route, args.user, context=context, K=history if study is None else None,
-                          policy=args.policy if study is None else study[0], seed=args.seed,
-                          n_traffic=args.traffic, playback=args.playback, window=not args.headless,
-                          speaker=speaker, screenshot=args.screenshot, screenshot_at=args.screenshot_at,
-                          countdown=args.countdown, hide_cost=args.hide_cost, notice=notice,
-                          title=f"{args.town} route {args.route}",
+    options = PlayOptions(seed=args.seed, n_traffic=args.traffic, playback=args.playback, window=not args.headless,
+                          K=history if study is None else None, screenshot=args.screenshot,
+                          screenshot_at=args.screenshot_at, countdown=args.countdown, hide_cost=args.hide_cost,
+                          notice=notice, title=f"{args.town} route {args.route}",
                           calibrate=args.input == "joystick" and not args.no_calibration)
+    session = PlaySession(args.town, args.route, args.user, context, args.policy if study is None else study[0],
+                          speaker=speaker, options=options)
     try:
         if controls is not None:
             session.controls = controls() if isinstance(controls, type) else controls

@@ -49,7 +49,7 @@ from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import env_planning_config
 from pernav.planner.retiming import RetimedExplore
-from pernav.study.checkpoints import final_models
+from pernav.study.finished import FinishedStudy, StudyError
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.collect import drive, history_env
 from pernav.trainer.ensemble import EnsembleTrainer
@@ -133,15 +133,15 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
                     help="U as the study adapts at test time (default), or its fixed step alpha unclipped")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    study = Path(args.study)
-    if not (study / "checkpoints" / args.town / "manifest.json").is_file():
-        print(f"error: no {args.town} checkpoint in {study} (run the study first)", file=sys.stderr)
+    try:  # the finished study's adapt ensemble and the settings it adapted with
+        study = FinishedStudy.open(args.study).model(args.town, "adapt")
+    except StudyError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
-    meta, members = final_models(study, args.town)
-    saved = json.loads((study / "study.json").read_text())["train"]
-    step = {"alpha": saved["alpha"], "L": saved["L"]}
+    meta, members, train = DynamicsModel(**study.model_config), study.members, study.train
+    step = {"alpha": train.alpha, "L": train.L}
     if args.adapt_step == "study":
-        step.update(max_norm=saved.get("max_grad_norm"), backtrack=saved.get("backtrack"))
+        step.update(max_norm=train.max_grad_norm, backtrack=train.backtrack)
     rows, pooled = {}, {}
     for driver in args.drivers:
         retimed = args.tau_policy == "retimed"

@@ -8,7 +8,8 @@ see your estimated reaction time with its 90 % interval and how your "turn" prom
 the record folder (``belief.pt``) after each drive.
 
 Example:
-    >>> session = BeliefSession("runs/default", "Town1", [0, 3, 5], record_dir="drives/me")  # doctest: +SKIP
+    >>> options = SessionOptions(record_dir="drives/me")                                     # doctest: +SKIP
+    >>> session = BeliefSession("runs/default", "Town1", [0, 3, 5], options=options)          # doctest: +SKIP
     >>> result = session.run()                                                               # doctest: +SKIP
 """
 

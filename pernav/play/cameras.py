@@ -35,7 +35,7 @@ import numpy as np
 from pernav.play.camera_base import Camera, CarShape, Fog, Frame
 from pernav.play.scene import PALETTE, TownScene, marking_quads, paint_plan, town_scene
 from pernav.play.seat import DriverCamera
-from pernav.world.towns import Town
+from pernav.world.network import Town
 
 __all__ = ["CAMERAS", "Camera", "CarShape", "ChaseCamera", "Fog", "Frame", "PlanCamera", "make_camera"]
 

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayOptions, PlaySession
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 
 __all__ = ["LIVE_TARGET_MS", "bench_live", "live_view"]
 

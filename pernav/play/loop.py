@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -131,8 +130,8 @@ class PlaySession:
 
     def __init__(self, town: str = "Town1", route: int = 0, user: Any = "user1", context: dict | None = None,
                  policy: str | Callable[[TensorDictBase], TensorDictBase] = "explore", controls: Any = None,
-                 speaker: Any = None, view: Any = None, options: PlayOptions | None = None, **settings: Any) -> None:
-        options = replace(options if options is not None else PlayOptions(), **settings)
+                 speaker: Any = None, view: Any = None, options: PlayOptions | None = None) -> None:
+        options = options if options is not None else PlayOptions()
         check_drive(town, route, policy, options)
         self.options = options
         self.town, self.route, self.seed, self.playback = town, int(route), int(options.seed), options.playback

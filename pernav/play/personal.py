@@ -26,7 +26,8 @@ Example (the scripted bot drives; a finished study in ``runs/smoke``):
     >>> policy, info = study_policy("runs/smoke", "Town1")                                        # doctest: +SKIP
     >>> PlaySession("Town1", 3, policy=policy, options=PlayOptions(n_traffic=2)).run().metrics["policy"]  # doctest: +SKIP
     'study'
-    >>> result = PersonalSession("runs/smoke", "Town1", [0, 3, 5], record_dir="me/").run()  # doctest: +SKIP
+    >>> options = SessionOptions(record_dir="me/")                                   # doctest: +SKIP
+    >>> result = PersonalSession("runs/smoke", "Town1", [0, 3, 5], options=options).run()  # doctest: +SKIP
     >>> sorted(result.summary["policies"])                                             # doctest: +SKIP
     ['adapted', 'explore']
     >>> study_history("/nonexistent", "Town1")

@@ -21,8 +21,9 @@ from typing import Any
 import numpy as np
 from highway_env.road.lane import LineType
 
+from pernav.world.network import Town
 from pernav.world.simulation import World
-from pernav.world.towns import LANE_WIDTH, Town
+from pernav.world.towns import LANE_WIDTH
 
 __all__ = ["PALETTE", "TownScene", "marking_quads", "paint_plan", "town_scene"]
 

@@ -109,8 +109,8 @@ class Session:
     def __init__(self, study_dir: str | Path, town: str, routes: Sequence[int], user: Any = "user1",
                  context: dict | None = None, controls: Any = None, speaker: Any = None,
                  announce: Callable[[str], None] | None = None, ready: Callable[[], None] | None = None,
-                 options: SessionOptions | None = None, **settings: Any) -> None:
-        options = replace(options if options is not None else SessionOptions(), **settings)
+                 options: SessionOptions | None = None) -> None:
+        options = options if options is not None else SessionOptions()
         self.options = options
         self.town, self.routes, self.seed = town, list(routes), int(options.seed)
         self.user, self.context, self.n_traffic = user, context, int(options.n_traffic)

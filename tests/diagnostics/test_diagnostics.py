@@ -72,7 +72,7 @@ def test_pernav_diagnose_planning_help_lists_the_diagnostics_options(capsys):
         assert option in out, option
 
 
-def test_pernav_diagnose_model_without_a_checkpoint_exit_2(tmp_path, capsys):
+def test_pernav_diagnose_model_without_a_finished_study_exit_2(tmp_path, capsys):
     import torch
 
     threads = torch.get_num_threads()  # model_check runs on one thread
@@ -81,4 +81,4 @@ def test_pernav_diagnose_model_without_a_checkpoint_exit_2(tmp_path, capsys):
     finally:
         torch.set_num_threads(threads)
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "no Town3 checkpoint" in err
+    assert len(err.splitlines()) == 1 and "holds no pernav study" in err

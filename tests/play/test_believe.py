@@ -12,10 +12,10 @@ from play_helpers import retimed_study
 
 from pernav.cli import main
 from pernav.learners.belief import ReactionBelief
-from pernav.play.believe import BeliefSession, belief_markdown, prompt_lead, session_class
-from pernav.play.loop import PlayError
+from pernav.play.believe import BeliefSession, prompt_lead, session_class
+from pernav.play.options import PlayError
 from pernav.play.personal import PersonalSession
-from pernav.play.sessions import SessionOptions
+from pernav.play.sessions import SessionOptions, belief_markdown
 from pernav.trainer.drives import load_drive
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")

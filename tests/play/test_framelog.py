@@ -13,7 +13,8 @@ from play_helpers import FrameScript
 from pernav.env.navigation import FRAME_KEYS
 from pernav.play.controls import JoystickControls, ScriptedControls
 from pernav.play.framelog import COLUMNS, answer_rows, append_csv, drive_rows
-from pernav.play.loop import PlayOptions, PlaySession
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 from pernav.world.constants import ACTION_NAMES, PLAYBACK
 from pernav.world.controls import ControlInput
 

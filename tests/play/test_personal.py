@@ -16,9 +16,10 @@ from pernav.cli import main
 from pernav.model.adapt import meta_parameters
 from pernav.planner.factory import env_planning_config
 from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayError, PlayOptions, PlaySession
-from pernav.play.personal import POLICY_NAMES, PersonalSession, study_policy, summary_markdown
-from pernav.play.sessions import SessionOptions
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayError, PlayOptions
+from pernav.play.personal import POLICY_NAMES, PersonalSession, study_policy
+from pernav.play.sessions import SessionOptions, summary_markdown
 from pernav.study.finished import FinishedStudy, StudyError, StudyPolicy
 from pernav.trainer.drives import load_drive, read_metrics
 

@@ -16,7 +16,8 @@ from play_helpers import FrameScript
 from pernav.cli import main
 from pernav.env.navigation import NavigationEnv
 from pernav.play.controls import ScriptedControls
-from pernav.play.loop import PlayOptions, PlaySession
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 from pernav.trainer.drives import load_drive, read_metrics, save_drive
 from pernav.world.controls import ControlInput
 

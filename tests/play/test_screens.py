@@ -12,7 +12,8 @@ import os
 import pytest
 
 from pernav.play.controls import ScriptedControls, SessionKeys
-from pernav.play.loop import PlayOptions, PlaySession
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 from pernav.world.constants import ACTION_NAMES, audio_duration
 from pernav.world.controls import ControlInput
 

@@ -19,8 +19,10 @@ os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 
 pygame = pytest.importorskip("pygame")
 
-from pernav.play.cameras import CAMERAS, CHASE_ANCHOR, Fog, Frame, make_camera  # noqa: E402
-from pernav.play.loop import PlayOptions, PlaySession  # noqa: E402
+from pernav.play.camera_base import Fog, Frame  # noqa: E402
+from pernav.play.cameras import CAMERAS, CHASE_ANCHOR, make_camera  # noqa: E402
+from pernav.play.loop import PlaySession  # noqa: E402
+from pernav.play.options import PlayOptions  # noqa: E402
 from pernav.play.scene import PALETTE  # noqa: E402
 from pernav.world.towns import get_town  # noqa: E402
 
@@ -125,7 +127,7 @@ def test_first_person_has_a_horizon_sky_above_road_below():
 
 
 def test_first_person_sees_the_left_turn_to_the_left_and_other_cars():
-    from pernav.play.cameras import CarShape
+    from pernav.play.camera_base import CarShape
 
     town, frame = _approach("left", 90.0, before=20.0)
     ahead = frame.ego + 12.0 * frame.forward

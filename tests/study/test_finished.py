@@ -23,7 +23,8 @@ from pernav.learners.timing import TimingModel  # noqa: E402
 from pernav.model.dynamics import DynamicsModel  # noqa: E402
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model  # noqa: E402
 from pernav.planner.factory import build_planner, env_planning_config  # noqa: E402
-from pernav.play.loop import PlayError, PlayOptions, PlaySession  # noqa: E402
+from pernav.play.loop import PlaySession
+from pernav.play.options import PlayError, PlayOptions
 from pernav.play.personal import study_history, study_policy  # noqa: E402
 from pernav.study.checkpoints import final_belief, final_models  # noqa: E402
 from pernav.study.config import BELIEF_DEFAULTS, LEARNERS  # noqa: E402

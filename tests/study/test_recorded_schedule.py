@@ -15,6 +15,7 @@ from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession
+from pernav.play.options import PlayOptions
 from pernav.study import ScheduleError, load_schedule, preset
 from pernav.trainer.buffers import RoundBuffers
 from pernav.trainer.drives import load_drive, read_metrics, save_drive
@@ -28,7 +29,7 @@ METHODS = ["explore", "sysid", "adapt", "adapt_speed", "hindsight"]
 def _record_drives(folder: Path) -> Path:
     """Two short headless drives of Town1 by the scripted bot (routes 0 and 1), saved as ``pernav play`` does."""
     for name, route, steps in (("alice_0", 0, 30), ("alice_1", 1, 24)):
-        result = PlaySession("Town1", route, n_traffic=2, seed=route).run(max_steps=steps)
+        result = PlaySession("Town1", route, options=PlayOptions(n_traffic=2, seed=route)).run(max_steps=steps)
         save_drive(result.trajectory, result.metrics, folder / "drives", name)
     return folder
 
