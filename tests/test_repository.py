@@ -378,3 +378,29 @@ def test_imports_sit_at_the_top_of_modules_unless_a_comment_says_why_one_waits()
     late = late_imports(ROOT)
     assert not late, "move these imports to the top of their module (or say why one waits: # lazy: ...):\n" + \
         "\n".join(late)
+
+
+MAX_CONSTRUCTOR_PARAMETERS = 10  # more: group them in an options dataclass (PlayOptions, SessionOptions, Departure)
+
+
+def constructor_sizes(root: Path) -> dict[str, int]:
+    """``file:line Class`` -> how many parameters its ``__init__`` takes besides ``self`` (``*args``, ``**kwargs``
+    count one each), for every class of pernav."""
+    sizes = {}
+    for path in sorted((root / "pernav").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef):
+                for f in node.body:
+                    if isinstance(f, ast.FunctionDef) and f.name == "__init__":
+                        a = f.args
+                        n = len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) - 1 + (a.vararg is not None) + \
+                            (a.kwarg is not None)
+                        sizes[f"{path.relative_to(root)}:{f.lineno} {node.name}"] = n
+    return sizes
+
+
+def test_no_constructor_takes_more_than_ten_parameters() -> None:
+    sizes = constructor_sizes(ROOT)
+    assert max(sizes.values()) <= MAX_CONSTRUCTOR_PARAMETERS, \
+        {k: v for k, v in sizes.items() if v > MAX_CONSTRUCTOR_PARAMETERS}
+    assert sizes and all(v >= 0 for v in sizes.values())

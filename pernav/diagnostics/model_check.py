@@ -139,7 +139,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     meta, members, train = DynamicsModel(**study.model_config), study.members, study.train
-    step = {"alpha": train.alpha, "L": train.L}
+    step = {"alpha": train.alpha, "L": train.L, "max_norm": None}  # fixed: the step unclipped
     if args.adapt_step == "study":
         step.update(max_norm=train.max_grad_norm, backtrack=train.backtrack)
     rows, pooled = {}, {}

@@ -13,7 +13,7 @@ __all__ = ["DiscreteTreeSearchPlanner", "SearchResult"]
 
 _NAVIGATION = {**{name: "pernav.planner.factory" for name in ("PLANNER_DEFAULTS", "PLANNER_KINDS", "build_planner")},
                **{name: "pernav.planner.retiming"
-                  for name in ("RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans")},
+                  for name in ("Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans")},
                "TreeSearchPlanner": "pernav.planner.tree_search"}
 __getattr__ = lazy_exports(__name__, _NAVIGATION)[0]
 

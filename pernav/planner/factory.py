@@ -11,9 +11,10 @@ Example:
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
-from pernav.planner.retiming import RetimingPlanner
+from pernav.planner.retiming import Departure, RetimingPlanner
 from pernav.planner.tree_search import TreeSearchPlanner
 from pernav.world.constants import N_ADAPTIVE_ACTIONS
 from pernav.world.files import key_values
@@ -49,7 +50,8 @@ def build_planner(env: Any, options: Mapping[str, Any], n_actions: int | None = 
     if kind == "paper":
         beam = opts.pop("beam_speed")
         return TreeSearchPlanner(env, beam=beam if n_actions == N_ADAPTIVE_ACTIONS else None, **opts)
-    return RetimingPlanner(env, **opts)
+    departure = Departure(**{f.name: opts.pop(f.name) for f in fields(Departure)})
+    return RetimingPlanner(env, departure=departure, **opts)
 
 
 def env_planning_config(options: Mapping[str, Any]) -> dict[str, int]:

@@ -5,8 +5,8 @@ which builds either from a study's options. Each lives in its own module (``tree
 """
 
 from pernav.planner.factory import PLANNER_DEFAULTS, PLANNER_KINDS, build_planner, env_planning_config, parse_planner_options
-from pernav.planner.retiming import RetimedExplore, RetimingPlanner, RetimingResult, candidate_plans
+from pernav.planner.retiming import Departure, RetimedExplore, RetimingPlanner, RetimingResult, candidate_plans
 from pernav.planner.tree_search import TreeSearchPlanner
 
-__all__ = ["PLANNER_DEFAULTS", "PLANNER_KINDS", "RetimedExplore", "RetimingPlanner", "RetimingResult",
+__all__ = ["PLANNER_DEFAULTS", "PLANNER_KINDS", "Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult",
            "TreeSearchPlanner", "build_planner", "candidate_plans", "env_planning_config", "parse_planner_options"]

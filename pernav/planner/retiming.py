@@ -59,7 +59,7 @@ from pernav.planner.discrete import planning_roots
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, Instruction
 from pernav.world.cost import tracking_cost
 
-__all__ = ["RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
+__all__ = ["Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
 
 
 @dataclass
@@ -106,6 +106,42 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     return seqs, int(inverse[0])
 
 
+@dataclass(frozen=True)
+class Departure:
+    """When the :class:`RetimingPlanner` leaves explore's plan for a cheaper candidate.
+
+    Args:
+        margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
+        agree: fraction of the rows (ensemble members, samples) that must each see a gain above the margin.
+        max_spread, rel_spread: leave explore only for a candidate whose effect (its positions minus explore's
+            plan's) the rows agree on within ``max_spread + rel_spread * size`` metres (the planner's
+            ``effect_spread``; the size is the effect's largest mean distance over the horizon; ``max_spread=None``:
+            no such test). ``rel_spread`` > 0 lets members that agree a re-timing moves the car tens of metres (an exit
+            taken or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more
+            than it gained (docs/research/findings.md, "End to end with the paper's one-step adaptation"), so it is
+            0 by default. With one row (one model, or one true-model sample) the spread is 0.
+
+    >>> Departure(margin=-1e12, agree=1e-9).rel_margin
+    0.05
+    """
+
+    margin: float = 20.0
+    rel_margin: float = 0.05
+    agree: float = 1.0
+    max_spread: float | None = 2.0
+    rel_spread: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.agree <= 1.0:
+            raise ValueError(f"agree must be in (0, 1], got {self.agree}")
+        if self.rel_spread < 0:
+            raise ValueError(f"rel_spread must be >= 0, got {self.rel_spread}")
+        for name in ("margin", "rel_margin", "agree", "rel_spread"):  # as the planner read them: floats
+            object.__setattr__(self, name, float(getattr(self, name)))
+        if self.max_spread is not None:
+            object.__setattr__(self, "max_spread", float(self.max_spread))
+
+
 class RetimingPlanner(MPCPlannerBase):
     """Tree search over re-timings of the explore plan with a route-aware cost; see the module docstring.
 
@@ -116,33 +152,20 @@ class RetimingPlanner(MPCPlannerBase):
             only earlier, see :data:`~pernav.planner.factory.PLANNER_DEFAULTS`).
         route_weight: weight of the squared distance to the planned route.
         progress_weight: reward per metre of route progress at the horizon.
-        margin, rel_margin: the gain over explore's plan needed to leave it (absolute, fraction of its cost).
-        agree: fraction of the rows (ensemble members, samples) that must each see a gain above the margin.
-        max_spread, rel_spread: leave explore only for a candidate whose effect (its positions minus explore's
-            plan's) the rows agree on within ``max_spread + rel_spread * size`` metres (:meth:`effect_spread`;
-            the size is the effect's largest mean distance over the horizon; ``max_spread=None``: no such test).
-            ``rel_spread`` > 0 lets members that agree a re-timing moves the car tens of metres (an exit taken
-            or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more than
-            it gained (docs/research/findings.md, "End to end with the paper's one-step adaptation"), so it is 0
-            by default. With one row (one model, or one true-model sample) the spread is 0.
+        departure: when a candidate may leave explore's plan (:class:`Departure`: margins, agreement, spread).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
-                 progress_weight: float = 1.0, margin: float = 20.0, rel_margin: float = 0.05, agree: float = 1.0,
-                 max_spread: float | None = 2.0, rel_spread: float = 0.0, playbacks: int | None = None) -> None:
+                 progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
-        if not 0.0 < agree <= 1.0:
-            raise ValueError(f"agree must be in (0, 1], got {agree}")
         self.horizon, self.advance, self.delay = int(horizon), int(advance), int(delay)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
-        self.margin, self.rel_margin, self.agree = float(margin), float(rel_margin), float(agree)
-        self.max_spread = None if max_spread is None else float(max_spread)
-        if rel_spread < 0:
-            raise ValueError(f"rel_spread must be >= 0, got {rel_spread}")
-        self.rel_spread = float(rel_spread)
+        self.departure = departure = departure if departure is not None else Departure()
+        self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
+        self.max_spread, self.rel_spread = departure.max_spread, departure.rel_spread
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (N_PLAYBACKS if n_actions == N_ADAPTIVE_ACTIONS else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)

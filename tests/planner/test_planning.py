@@ -12,7 +12,7 @@ from pernav.diagnostics.panel import PanelJob, comparison_table, drive_panel_epi
 from pernav.env.navigation import NavigationEnv
 from pernav.model import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
-from pernav.planner import RetimingPlanner, TreeSearchPlanner, build_planner, candidate_plans
+from pernav.planner import Departure, RetimingPlanner, TreeSearchPlanner, build_planner, candidate_plans
 from pernav.study.compare import compare
 from pernav.study.stats import bootstrap_ci, gap_closed, paired_difference
 from pernav.world.cost import tracking_cost
@@ -108,14 +108,17 @@ def test_retiming_cost_equals_a_brute_force_rollout_of_each_sequence():
         assert cost[n].item() == pytest.approx(total, rel=1e-4, abs=1e-3)
 
 
+EAGER = Departure(margin=-1e12, rel_margin=0.0, agree=1e-9)  # leaves explore for any cheaper candidate
+
+
 def test_retiming_planner_keeps_explore_unless_the_gain_is_clear():
     torch.manual_seed(0)
     env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(16,))))
     root = _root()
-    stubborn = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=1e12)
+    stubborn = RetimingPlanner(env, horizon=4, advance=2, delay=1, departure=Departure(margin=1e12))
     action, result = stubborn.decide(root)
     assert action == int(root["explore_future"][0]) and result.chosen == result.explore
-    eager = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    eager = RetimingPlanner(env, horizon=4, advance=2, delay=1, departure=EAGER)
     action, result = eager.decide(root)
     assert result.chosen == int(result.costs.argmin())  # no margin: the cheapest candidate
     assert eager(root.unsqueeze(0).expand(3))["action"].shape == (3,)
@@ -128,23 +131,23 @@ def test_retiming_planner_stays_with_explore_where_the_ensemble_disagrees():
     members = [DynamicsModel(hidden=(16,)) for _ in range(2)]
     env = ImaginedNavigationEnv(make_world_model(members[0]))
     root = _root()
-    eager = {"horizon": 4, "advance": 2, "delay": 1, "margin": -1e12, "rel_margin": 0.0, "agree": 1e-9}
-    confident = RetimingPlanner(env, max_spread=None, **eager)
-    cautious = RetimingPlanner(env, max_spread=1e-6, rel_spread=0.0, **eager)
+    eager = {"margin": -1e12, "rel_margin": 0.0, "agree": 1e-9}  # as EAGER, with a spread test of its own
+    confident = RetimingPlanner(env, 4, 2, 1, departure=Departure(max_spread=None, **eager))
+    cautious = RetimingPlanner(env, 4, 2, 1, departure=Departure(max_spread=1e-6, rel_spread=0.0, **eager))
     for planner in (confident, cautious):
         planner.params = [meta_parameters(m).detach() for m in members]
     _, free = confident.decide(root)
     _, held = cautious.decide(root)
     assert free.chosen != free.explore  # with no spread test the cheapest candidate wins
     assert held.chosen == held.explore  # two random members disagree by far more than a micrometre
-    _, one = RetimingPlanner(env, max_spread=1e-6, rel_spread=0.0, **eager).decide(root)  # one row: no test
+    _, one = RetimingPlanner(env, 4, 2, 1, departure=cautious.departure).decide(root)  # one row: no test
     assert one.chosen == int(one.costs.argmin())
 
 
 def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spread_with_the_effect():
     env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
     root = _root()
-    probe = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    probe = RetimingPlanner(env, horizon=4, advance=2, delay=1, departure=EAGER)
     _, res = probe.decide(root)
     N, e = res.candidates.shape[0], res.explore
     j = next(i for i in range(N) if int(res.candidates[i, 0]) != int(res.candidates[e, 0]))
@@ -158,7 +161,8 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
 
     def leaves(gains, effects, **kw) -> bool:
         kw = {"rel_spread": 0.5, **kw}
-        planner = RetimingPlanner(env, horizon=4, advance=2, delay=1, margin=20.0, rel_margin=0.0, **kw)
+        departure = Departure(margin=20.0, rel_margin=0.0, **kw)
+        planner = RetimingPlanner(env, horizon=4, advance=2, delay=1, departure=departure)
         planner.costs = crafted(gains, effects)
         return planner.decide(root)[1].chosen == j
 
@@ -171,7 +175,7 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
 
 def test_retiming_planner_with_21_actions_plans_every_playback():
     env = ImaginedNavigationEnv(make_world_model(DynamicsModel(n_actions=21, hidden=(8,))))
-    planner = RetimingPlanner(env, horizon=3, advance=2, delay=1, margin=-1e12, rel_margin=0.0, agree=1e-9)
+    planner = RetimingPlanner(env, horizon=3, advance=2, delay=1, departure=EAGER)
     action, result = planner.decide(_root(21))
     assert 0 <= action < 21 and {int(a) % 3 for a in result.candidates[:, 0] if a >= 3} == {0, 1, 2}
 
