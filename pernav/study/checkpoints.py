@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import torch
 
+from pernav.env.layout import STATE_DIM
 from pernav.model.dynamics import DynamicsModel
 from pernav.study.errors import CheckpointError
 from pernav.trainer.buffers import RoundBuffers
@@ -149,7 +150,10 @@ def final_models(study: str | Path, town: str, learner: str = "adapt") -> tuple[
     if learner not in data["learners"]:
         raise CheckpointError(f"learner {learner!r} not in the checkpoint; it has {', '.join(data['learners'])}")
     members = data["learners"][learner]["members"]
-    return DynamicsModel(**members[0]["model_config"]), [m["model"] for m in members]
+    config = dict(members[0]["model_config"])
+    # a checkpoint from before the delta was saved: "auto" then meant the navigation's layout for any 14-d state
+    config.setdefault("delta", "egocentric" if config.get("state_dim") == STATE_DIM else "plain")
+    return DynamicsModel(**config), [m["model"] for m in members]
 
 
 def final_belief(study: str | Path, town: str) -> dict[str, Any]:
