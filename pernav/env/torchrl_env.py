@@ -2,7 +2,7 @@
 
 The wrapper is a :class:`torchrl.envs.GymWrapper` with a ``Categorical`` action spec, the reset options
 (route, user, context) applied on every reset, and the numeric ``info`` entries written into the
-tensordict with declared specs (:data:`INFO_SPECS`). Reward is ``-step_cost``.
+tensordict with declared specs (:data:`INFO_DTYPES`). Reward is ``-step_cost``.
 
 Example:
     >>> from pernav.env.torchrl_env import explore_module, make_torchrl_env

@@ -49,7 +49,7 @@ class TownSpec:
     description: str = ""
 
 
-TOWN_SPECS: dict[str, TownSpec] = {
+TOWN_MAPS: dict[str, TownSpec] = {
     "Town1": TownSpec(
         "Town1",
         ["X-X-X-X", "| | | |", "X-X-X-X", "| | | |", "X-X-X-X"],
@@ -86,8 +86,8 @@ TOWN_SPECS: dict[str, TownSpec] = {
         "Downtown: two-lane avenues crossing two-lane boulevards, one-lane side streets.",
     ),
 }
-if tuple(TOWN_SPECS) != TOWN_NAMES:  # the light list (pernav.world.constants) names these maps, in order
-    raise RuntimeError(f"TOWN_SPECS {tuple(TOWN_SPECS)} differ from pernav.world.constants.TOWN_NAMES")
+if tuple(TOWN_MAPS) != TOWN_NAMES:  # the light list (pernav.world.constants) names these maps, in order
+    raise RuntimeError(f"TOWN_MAPS {tuple(TOWN_MAPS)} differ from pernav.world.constants.TOWN_NAMES")
 
 
 class TownError(ValueError):
@@ -320,8 +320,8 @@ def build_town(spec: TownSpec) -> Town:
 @functools.cache
 def get_town(name: str) -> Town:
     """The named town with its ten fixed routes (cached: towns are immutable once built)."""
-    if name not in TOWN_SPECS:
+    if name not in TOWN_MAPS:
         raise TownError(f"unknown town {name!r}; choose one of {', '.join(TOWN_NAMES)}")
-    town = build_town(TOWN_SPECS[name])
+    town = build_town(TOWN_MAPS[name])
     town.routes = make_routes(town)
     return town
