@@ -25,7 +25,7 @@ CODE_SUFFIXES = {".py", ".yaml", ".yml", ".md", ".txt", ".json", ".toml"}
 DOC_FILES = ("README.md", "CHANGELOG.md")
 DOC_GLOBS = ("docs/**/*.md", "docs/**/*.yaml", "docs/**/*.yml", "docs/**/*.json", "docs/**/*.txt")
 
-# (a) an absolute path of a development machine; a path inside the repository (runs/home/x) is not one: the
+# (a) an absolute path of a development machine; a path inside the repository (runs, then home, then x) is not one: the
 # folder must start the path. /tmp is left out on purpose: docs use it as an example output folder.
 _MACHINE_PATH = re.compile(r"(?<![\w.~$/-])/(?:work|home|Users|root|opt)/")
 # (b) a spec document the repository does not hold: the upper-case word (SPEC, SPEC.md, SPEC §6); a name such as
@@ -241,11 +241,12 @@ def scan(paths: list[Path], root: Path = ROOT, allowed: dict | None = None) -> l
 
 def test_the_scanner_finds_planted_words_and_passes_clean_ones(tmp_path: Path) -> None:
     bad = tmp_path / "bad.md"
+    work, home = "/" + "work", "/" + "home"  # built here, so that no machine path stands in the repository
     bad.write_text(
-        "Clean: runs/home/x, ~/work/y, /tmp/out, docs/spec.md, ACTION_SPEC, the issues list, pernav.world.towns.\n"
+        f"Clean: runs{home}/x, ~{work}/y, /tmp/out, docs/spec.md, ACTION_SPEC, the issues list, pernav.world.towns.\n"
         "Clean: `git show 4cd6bc4:pernav.gone.module`, the issue tracker, pernav.learners.belief.ReactionBelief.\n"
         "Clean: pernav.planner.build_planner (a lazy export), pernav.world.driver_car.DriverCar.simulated_controls.\n"
-        "Bad: /work/shared/x.txt and /home/me/pernav\n"
+        f"Bad: {work}/shared/x.txt and {home}/me/pernav\n"
         "Bad: SPEC §6 and SPEC.md\n"
         "Bad: issue #31, Issue 10, issues #31/#33 and the issue's targets\n"
         "Bad: pernav.study.no_such_module, pernav.world.towns.NoSuchName.\n")
