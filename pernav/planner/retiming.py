@@ -59,7 +59,7 @@ from pernav.planner.discrete import planning_roots
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, Instruction
 from pernav.world.cost import tracking_cost
 
-__all__ = ["Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "candidate_plans"]
+__all__ = ["Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "ShiftedExplore", "candidate_plans"]
 
 
 @dataclass
@@ -326,4 +326,34 @@ class RetimedExplore(TensorDictModuleBase):
         flat = td.reshape(-1)
         actions = [self._act(flat[i]) for i in range(flat.shape[0])]
         td.set("action", torch.tensor(actions, dtype=torch.long).reshape(td.shape))
+        return td
+
+
+class ShiftedExplore(TensorDictModuleBase):
+    """Explore's rule shifted by a constant ``shift`` of whole steps: ``shift`` > 0 says each prompt that many steps
+    earlier (explore's plan ahead, ``"explore_future"``), < 0 later (what explore said ``-shift`` steps ago, from
+    ``"explore_plan"``, which reaches ``plan_shift`` steps back). The family ``best_shift`` picks from for each driver.
+
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> td = TensorDict({"explore_future": torch.tensor([0, 0, 4, 4]), "explore_plan": torch.tensor([1, 1, 0, 0, 4])}, [])
+    >>> [int(ShiftedExplore(k, plan_shift=2)(td.clone())["action"]) for k in (-2, -1, 0, 2)]
+    [1, 1, 0, 4]
+    """
+
+    def __init__(self, shift: int, plan_shift: int = 2) -> None:
+        super().__init__()
+        if shift < -plan_shift:
+            raise ValueError(f"a later shift reaches at most plan_shift = {plan_shift} steps back; got {shift}")
+        self.shift, self.plan_shift = int(shift), int(plan_shift)
+        self.in_keys = ["explore_future", "explore_plan"]
+        self.out_keys = ["action"]
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        if self.shift >= 0:
+            future = td["explore_future"]
+            action = future[..., min(self.shift, future.shape[-1] - 1)]
+        else:
+            action = td["explore_plan"][..., self.plan_shift + self.shift]
+        td.set("action", action.long())
         return td

@@ -53,6 +53,8 @@ class RunState:
     belief_posteriors: dict[str, dict[str, Any]] = field(default_factory=dict)  # per user (profile and context)
     belief_rounds: dict[str, dict[str, Any]] = field(default_factory=dict)  # its posterior after each round's tau
     hindsight: dict[str, Any] | None = None  # the hindsight model's evaluations and losses, once trained
+    driver: dict[str, Any] | None = None  # adapt_driver's offline fit, meta model, evidence and estimates
+    shifts: dict[str, dict[str, Any]] = field(default_factory=dict)  # best_shift's selection per round
 
     #: keys of checkpoints written before a field was renamed -> the field
     RENAMED: ClassVar[dict[str, str]] = {"timing": "wall_time"}

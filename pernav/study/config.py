@@ -21,10 +21,15 @@ from pernav.trainer.ftml import TrainConfig
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_INSTRUCTIONS, TOWN_NAMES
 from pernav.world.files import key_values
 
-__all__ = ["BELIEF_DEFAULTS", "COLLECT", "METHODS", "PRESETS", "RENAMED_OPTIONS", "TIMING_DEFAULTS", "PresetError",
-           "StudyConfig", "current_names", "learner_options", "preset"]
+__all__ = ["BELIEF_DEFAULTS", "COLLECT", "DEFAULT_METHODS", "METHODS", "PRESETS", "RENAMED_OPTIONS", "TIMING_DEFAULTS",
+           "PresetError", "StudyConfig", "current_names", "learner_options", "preset"]
 
-METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "oracle")
+METHODS = ("explore", "sysid", "adapt", "adapt_speed", "hindsight", "timing", "belief", "adapt_driver",
+           "adapt_driver_static", "adapt_driver_prior", "adapt_driver_formula", "best_shift", "oracle")
+# what a preset runs unless it names its methods: adapt_driver's ablations and best_shift (the reference, which drives
+# every shift of explore's rule on selection episodes each round) run where a preset or --methods asks for them
+DEFAULT_METHODS = tuple(m for m in METHODS if m not in ("adapt_driver_static", "adapt_driver_prior",
+                                                        "adapt_driver_formula", "best_shift"))
 COLLECT = ("explore", "retimed")  # StudyConfig.collect and StudyConfig.tau_policy choices
 # learning methods and their action counts
 LEARNERS = {"sysid": N_INSTRUCTIONS, "adapt": N_INSTRUCTIONS, "adapt_speed": N_ADAPTIVE_ACTIONS}
@@ -82,7 +87,7 @@ class StudyConfig:
     offline_trajectories: int = 4  # explore trajectories per offline round
     n_traffic: int = 8
     # every method: the paper's, the timing learner (it joined after its sized judging, docs/personal.md) and the oracle
-    methods: list[str] = field(default_factory=lambda: list(METHODS))
+    methods: list[str] = field(default_factory=lambda: list(DEFAULT_METHODS))
     train: TrainConfig = field(default_factory=TrainConfig)
     planner: dict[str, Any] = field(default_factory=lambda: {"kind": "retime"})  # see pernav.planner.factory
     # the learners' non-MPC data: "explore" (the paper) or "retimed" (explore with its prompts re-timed at

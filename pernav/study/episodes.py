@@ -17,10 +17,13 @@ from dataclasses import dataclass
 from typing import Any
 
 from pernav.env.torchrl_env import explore_module, info_action_module, oracle_module
+from pernav.learners.driver import DriverPlanner
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
+from pernav.planner.retiming import ShiftedExplore
 from pernav.study.config import StudyConfig
+from pernav.study.driver_rounds import DRIVER_PLANNER
 from pernav.study.schedule import Entry
 from pernav.trainer.collect import drive, episode_metrics, history_env
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_INSTRUCTIONS
@@ -55,10 +58,10 @@ class EpisodeJob:
     entry: Entry
     route: int
     seed: int
-    policy: str  # explore | oracle | mpc | belief
+    policy: str  # explore | oracle | mpc | belief | driver | shift
     n_actions: int = N_INSTRUCTIONS
     model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
-    params: Any = None  # adapted parameters (TensorDict), a belief (dict) for "belief", or None
+    params: Any = None  # adapted parameters (TensorDict), a belief for "belief", a tracker for "driver", a shift, or None
     policy_name: str = ""  # the study method this episode evaluates
 
 
@@ -70,6 +73,10 @@ def make_policy(job: EpisodeJob) -> Any:
         return oracle_module()
     if job.policy == "belief":  # explore's rule re-timed for a belief about the user (the env computes it)
         return info_action_module("belief_action")
+    if job.policy == "driver":  # adapt_driver: MPC on the hybrid model, its tracker following the drive
+        return DriverPlanner(job.params.copy(), DRIVER_PLANNER)
+    if job.policy == "shift":
+        return ShiftedExplore(int(job.params), plan_shift=int(env_planning_config(job.cfg.planner).get("plan_shift", 2)))
     if job.policy != "mpc" or job.model is None:
         raise ValueError(f"unknown policy spec {job.policy!r}")
     model = DynamicsModel(**job.model["config"])

@@ -50,7 +50,8 @@ from pernav.planner.factory import build_planner
 from pernav.planner.retiming import RetimedExplore
 from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
-from pernav.study.episodes import EpisodeJob, episode, run_episode_job
+from pernav.study.driver_rounds import DRIVER_METHODS, SHIFTS, DriverState, fit_driver
+from pernav.study.episodes import EpisodeJob, episode, make_policy, run_episode_job
 from pernav.study.parallel import SerialExecutor
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
@@ -118,8 +119,12 @@ def _policy_spec(method: str, learners: dict[str, Learner], adapted: dict[str, A
     """(policy, n_actions, model, params, policy_name) of an :class:`EpisodeJob` for ``method``."""
     if method in ("explore", "oracle"):
         return method, N_INSTRUCTIONS, None, None, method
-    if method in ("timing", "belief"):  # explore's rule re-timed for the belief read from tau
+    if method in ("timing", "belief", "adapt_driver_formula"):  # explore's rule re-timed for a belief read from tau
         return "belief", N_INSTRUCTIONS, None, adapted[method], method
+    if method in DRIVER_METHODS:  # MPC on the hybrid model with the driver's estimate (a tracker)
+        return "driver", N_INSTRUCTIONS, None, adapted[method], method
+    if method == "best_shift":  # explore's rule shifted by the round's chosen constant
+        return "shift", N_INSTRUCTIONS, None, adapted[method], method
     learner = learners[method]
     return "mpc", learner.n_actions, learner.spec(), adapted[method], method
 
@@ -238,9 +243,14 @@ def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, rec
         if "timing" in cfg.methods:
             with _Timer(run.profile, "timing_offline_s"):
                 state.timing_model = _fit_timing(cfg, run.town).state_dict()
-        if "belief" in cfg.methods:
+        driver = any(m in cfg.methods for m in DRIVER_METHODS)
+        if "belief" in cfg.methods or driver:
             with _Timer(run.profile, "belief_offline_s"):
-                state.belief_model = _fit_belief(cfg, run.town)
+                drives = _labelled(cfg, run.town)
+                state.belief_model = _fit_belief(cfg, drives)
+        if driver:  # the same simulated drivers: the detectors are the belief's; P0 and its offline meta-training
+            with _Timer(run.profile, "adapt_driver_offline_s"):
+                state.driver = fit_driver(drives, state.belief_model, cfg.belief["noise"], cfg.belief["outlier"])
         state.warm = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
 
 
@@ -279,8 +289,16 @@ def _online_round(run: _Town, entry: Entry, index: int, rng: random.Random, reco
             state.timing_beliefs[entry.label] = adapted["timing"]
         if "belief" in cfg.methods:  # the posterior about this round's user: its earlier rounds' taus and this one
             adapted["belief"] = _read_tau(cfg, state, entry, tau)
+        driver_methods = [m for m in cfg.methods if m in DRIVER_METHODS]
+        if driver_methods:  # U(P, tau) from this user's estimate so far
+            adapted.update(DriverState(state.driver).read_tau(_user_key(entry), entry.label, tau, driver_methods))
+    if "best_shift" in cfg.methods:
+        with _Timer(profile, "best_shift_s"):
+            adapted["best_shift"] = _best_shift(run, entry)
     _evaluate(run, entry, adapted, record)
     _rollouts(run, entry, index, rng, adapted)
+    if "adapt_driver" in cfg.methods:
+        _driver_rollouts(run, entry, adapted["adapt_driver"])
     # the online loss of adapt before the update (for the model-loss regret)
     if "adapt" in learners:
         _round_losses(cfg, state, entry, index, learners["adapt"], adapted["adapt"])
@@ -319,6 +337,38 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
         learner.planner.planning_s for learner in learners.values()) - planning_before
 
 
+def _driver_rollouts(run: _Town, entry: Entry, tracker: Any) -> None:
+    """adapt_driver's data: ``rollouts`` drives of the round's user (its MPC w.p. 1/2, else the collector), whose
+    evidence scores ``U(P, tau)`` in the FTML update of its meta model that follows. Its own random stream: the other
+    learners' drives are unchanged by it."""
+    cfg, state = run.cfg, DriverState(run.state.driver)
+    rng = random.Random(run.seed(entry.label, "adapt_driver", "rollouts"))
+    others = []
+    with _Timer(run.profile, "adapt_driver_collection_s"):
+        for k in range(cfg.rollouts):
+            use_mpc, route, seed = rng.random() < 0.5, rng.randrange(10), run.seed(entry.label, "adapt_driver", k)
+            policy = make_policy(EpisodeJob(cfg, run.town, entry, route, seed, "driver", params=tracker)) if use_mpc \
+                else _collector(cfg, seed)
+            others.append(state.evidence_of(episode(cfg, run.town, entry, route, seed, policy), tracker))
+    with _Timer(run.profile, "adapt_driver_meta_s"):
+        state.meta_update(others)
+
+
+def _best_shift(run: _Town, entry: Entry) -> int:
+    """The constant shift of explore's rule (:data:`~pernav.study.driver_rounds.SHIFTS`) cheapest for the round's user
+    on the true simulator, over the evaluation routes driven with selection seeds (never the evaluation's)."""
+    cfg = run.cfg
+    jobs = [EpisodeJob(cfg, run.town, entry, route, run.seed(entry.label, "shift selection", route), "shift",
+                       params=k, policy_name=str(k)) for k in SHIFTS for route in range(cfg.routes)]
+    metrics = run.executor.map(run_episode_job, jobs, desc=f"{run.town} {entry.label} best_shift selection")
+    _strip_wall_time(metrics, run.profile, "best_shift")
+    costs = {k: sum(m["tracking_cost"] for j, m in zip(jobs, metrics, strict=True) if j.params == k) / cfg.routes
+             for k in SHIFTS}
+    best = min(SHIFTS, key=lambda k: (costs[k], abs(k)))  # ties: the smaller shift
+    run.state.shifts[entry.label] = {"shift": best, "selection_costs": {str(k): round(c, 3) for k, c in costs.items()}}
+    return best
+
+
 def _town_result(run: _Town) -> dict[str, Any]:
     state = run.state
     diagnostics = {name: {"skipped_updates": learner.trainer.skipped, "clipped_updates": learner.trainer.clipped,
@@ -330,6 +380,11 @@ def _town_result(run: _Town) -> dict[str, Any]:
         diagnostics["timing"] = {"beliefs": state.timing_beliefs}
     if state.belief_rounds:
         diagnostics["belief"] = {"beliefs": state.belief_rounds}
+    if state.driver is not None:
+        diagnostics["adapt_driver"] = {"estimates": state.driver.get("rounds", {}),
+                                       "prior0": state.driver["prior0"], "prior": state.driver["prior"]}
+    if state.shifts:
+        diagnostics["best_shift"] = state.shifts
     return {"town": run.town, "results": state.results, "online_losses": state.online_losses,
             "unadapted_losses": state.unadapted_losses, "fixed_step_losses": state.fixed_step_losses,
             "diagnostics": diagnostics,
@@ -413,15 +468,19 @@ def _fit_timing(cfg: StudyConfig, town: str) -> TimingModel:
     return model.fit(torch.stack(features), torch.stack(targets))
 
 
-def _fit_belief(cfg: StudyConfig, town: str) -> dict[str, Any]:
-    """The belief learner's offline phase: ``cfg.belief["offline_drivers"]`` simulated drivers of the population prior
-    each drive one explore route of ``town``; each heard prompt's answer window, labelled with the moment it took
-    effect (known: they are simulated), trains the :class:`~pernav.learners.belief.AnswerDetector`, and their reaction
-    times give the prior (:func:`pernav.learners.answers.fit_belief`)."""
+def _labelled(cfg: StudyConfig, town: str) -> list[Any]:
+    """The belief's offline drives: ``cfg.belief["offline_drivers"]`` simulated drivers of the population prior each
+    drive one explore route of ``town``, each heard prompt's answer window labelled with the moment it took effect
+    (known: they are simulated)."""
+    return labelled_drives(town, int(cfg.belief["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
+                           derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic}, progress=True)
+
+
+def _fit_belief(cfg: StudyConfig, drives: list[Any]) -> dict[str, Any]:
+    """The belief learner's offline phase: the offline drives' labelled answers train the
+    :class:`~pernav.learners.belief.AnswerDetector`, and their reaction times give the prior
+    (:func:`pernav.learners.answers.fit_belief`)."""
     options = cfg.belief
-    drives = labelled_drives(town, int(options["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
-                             derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic},
-                             progress=True)
     detector, prior, swerve = fit_belief(drives, decision=bool(options.get("decision", 0)), noise=options["noise"],
                                          outlier=options["outlier"], quantile=options["quantile"],
                                          drift=options.get("drift", 0.0), slower=options.get("slower", 0.0))

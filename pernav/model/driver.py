@@ -1,0 +1,215 @@
+"""A world model that can represent a driver: what the navigation knows (its route, its prompts and their audio, the
+car's speed) is not learned; a driver-response part with per-driver parameters (:class:`DriverParams`) says when a
+prompt takes effect and what the car does then. The planner imagines each candidate prompt sequence with *this*
+driver (:class:`DriverImaginedEnv`, an env with ``imagine`` for :class:`~pernav.planner.retiming.RetimingPlanner`).
+
+The structure it assumes is the model's own, not the simulator's (it never calls :mod:`pernav.world`'s drivers or
+traffic):
+
+* a prompt played at the start of a step is heard by the end of its audio and takes effect a reaction time later,
+  lognormal around the driver's mean reaction time ``R`` with a log-SD ``sigma`` (one draw per row of the
+  imagination: rows are quantiles of that draw and samples of the driver's parameters);
+* once a prompt took effect the car brakes toward the driver's turn speed at its deceleration ``brake``;
+* the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
+  if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
+  the route;
+* the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, and the goal runs
+  ahead of it on the route as far as it runs ahead now.
+
+The parameters are what :mod:`pernav.learners.driver` adapts to a driver from what the navigation senses.
+
+Example:
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)     # straight ahead along x
+    >>> route[25:, 1] = (torch.arange(71.0) + 1) * 3; route[25:, 0] = route[24, 0]     # a left turn 57 m ahead
+    >>> history = torch.zeros(5, 21); history[:, 3] = 10.0                          # 10 m/s, no prompt yet
+    >>> root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+    >>> env = DriverImaginedEnv()
+    >>> now, late = torch.full((12,), 1), torch.cat([torch.zeros(10, dtype=torch.long), torch.full((2,), 1)])
+    >>> pos, goal = env.imagine(root, torch.stack([now, late]), [DriverParams(reaction_time=1.0)])
+    >>> bool(pos[0, 0, -1, 1] > 5.0), bool(pos[0, 1, -1, 1].abs() < 1.0)    # said now: turned; said late: missed
+    (True, True)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING, STATE_DIM
+from pernav.model.egocentric import GX, GY, VX, VY
+from pernav.world.constants import AUDIO_DURATION, N_INSTRUCTIONS, PREPARES, Instruction
+
+__all__ = ["DriverImaginedEnv", "DriverParams", "imagine_drive"]
+
+HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in ``route_ahead``
+SUBSTEPS = 10  # the imagination's steps per one-second decision
+MIN_COMMIT = 4.0  # m: a driver commits no closer to the junction than this
+FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
+
+
+@dataclass(frozen=True)
+class DriverParams:
+    """One driver as the model sees it (all in seconds, m/s, m/s^2).
+
+    >>> DriverParams(reaction_time=2.0).reaction_time
+    2.0
+    """
+
+    reaction_time: float = 1.2  # mean time from a prompt's audio end to its effect
+    decision_time: float = 2.0  # s before the junction at which the driver commits to a branch
+    sigma: float = 0.3  # log-SD of one prompt's reaction time around the mean
+    turn_speed: float = 5.0  # the speed the driver brakes to for a turn
+    brake: float = 2.0  # its deceleration
+    cruise: float = 10.0  # the speed it drives at between junctions
+    prepared: float = 0.75  # the share of its cruise it slows to on a "prepare"
+    accel: float = 1.5  # its acceleration back to cruise
+
+    def tensor(self) -> torch.Tensor:
+        return torch.tensor([self.reaction_time, self.decision_time, self.sigma, self.turn_speed, self.brake,
+                             self.cruise, self.prepared, self.accel], dtype=torch.float64)
+
+
+QUANTILES = (-1.2816, -0.5244, 0.0, 0.5244, 1.2816)  # standard-normal quantiles of one prompt's reaction draw
+
+
+def _audio(actions: torch.Tensor) -> torch.Tensor:
+    table = torch.tensor(AUDIO_DURATION, dtype=torch.float64)
+    return table[actions.long().clamp(0, N_INSTRUCTIONS - 1)]
+
+
+def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Points ``[..., 2]`` at arc length ``s`` ``[...]`` (m from the car's projection) along a ``[P, 2]`` polyline of
+    points ``ROUTE_SPACING`` apart (linear between them; past the end it goes on straight)."""
+    P = route.shape[0]
+    u = (s / ROUTE_SPACING + HERE).clamp(min=0.0)
+    i = u.floor().long().clamp(max=P - 2)
+    frac = (u - i.to(u.dtype)).unsqueeze(-1)
+    return route[i] + frac * (route[i + 1] - route[i])
+
+
+def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
+    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 9]``: the eight
+    :class:`DriverParams` fields and the row's reaction-time quantile ``z``.
+
+    ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
+    ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
+    hist = root["history"].double()
+    route = root["route_ahead"].double()
+    s_junction = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
+    N, H = sequences.shape
+    M = drivers.shape[0]
+    drivers = drivers.double()
+    R, D, sigma, v_turn, brake, cruise, prepared, accel, z = (drivers[:, k].reshape(M, 1) for k in range(9))
+    reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
+    state = hist[-1]
+    v0 = float(torch.hypot(state[VX], state[VY]))
+    cruise = cruise.expand(M, N)
+    # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
+    past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
+    past_actions = torch.where(past.any(-1), past.argmax(-1), torch.zeros(len(past), dtype=torch.long))
+    actions = torch.cat([past_actions.expand(N, -1), sequences.long()], 1)  # [N, K-1+H]
+    starts = torch.arange(actions.shape[1], dtype=torch.float64) - len(past_actions)  # step start times
+    previous = torch.cat([torch.zeros(N, 1, dtype=torch.long), actions[:, :-1]], 1)
+    played = (actions != Instruction.NONE) & (actions != previous)
+    effect = starts + _audio(actions)  # [N, T] heard at the audio's end...
+    effect = effect.unsqueeze(0) + reaction.unsqueeze(-1)  # [M, N, T] ...and acted on a reaction later
+    # a prompt that took effect before now shows in the car's speed already, and may be a past junction's
+    effect = torch.where(played.unsqueeze(0) & (effect >= 0), effect, torch.full_like(effect, math.inf))
+    prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
+    first_turn = torch.where(prepare, torch.full_like(effect, math.inf), effect).min(-1).values  # [M, N]
+    first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
+    first = torch.minimum(first_turn, first_prepare)  # either chooses the branch
+    s = torch.zeros(M, N, dtype=torch.float64)
+    v = torch.full((M, N), v0, dtype=torch.float64)
+    committed = torch.zeros(M, N, dtype=torch.bool)
+    taken = torch.ones(M, N, dtype=torch.bool)
+    commit_distance = torch.clamp(D * v0, min=MIN_COMMIT)  # [M, 1]
+    if s_junction - commit_distance.min() <= 0:  # already committed before the root: decided, unknown to us
+        committed[:] = True
+    dt = 1.0 / SUBSTEPS
+    out_s, out_taken = [], []
+    for h in range(H):
+        for k in range(SUBSTEPS):
+            t = h + (k + 1) * dt
+            inside = (~committed) & (s_junction - s <= commit_distance)
+            taken = torch.where(inside, first <= t, taken)
+            committed = committed | inside
+            before = s < s_junction
+            target = cruise.clone()
+            target = torch.where((first_prepare <= t) & before, torch.minimum(target, prepared * cruise), target)
+            target = torch.where((first_turn <= t) & taken & before, torch.minimum(target, v_turn), target)
+            rate = torch.where(v > target, brake.expand_as(v), accel.expand_as(v))
+            v = v + torch.clamp(target - v, -rate * dt, rate * dt)
+            s = s + v * dt
+        out_s.append(s.clone())
+        out_taken.append(taken.clone())
+    s_all = torch.stack(out_s, -1)  # [M, N, H]
+    taken_all = torch.stack(out_taken, -1)
+    on_route = _route_at(route, s_all)
+    # a missed junction: straight on from its point along the approach's direction
+    junction = _route_at(route, torch.tensor(min(s_junction, 1e4), dtype=torch.float64))
+    before = _route_at(route, torch.tensor(max(min(s_junction, 1e4) - 9.0, -ROUTE_BEHIND), dtype=torch.float64))
+    direction = junction - before
+    direction = direction / direction.norm().clamp(min=1e-6)
+    straight = junction + (s_all - s_junction).clamp(min=0.0).unsqueeze(-1) * direction
+    missed = (~taken_all) & (s_all > s_junction)
+    pos = torch.where(missed.unsqueeze(-1), straight, on_route)
+    # the goal runs ahead on the route by as much as it does now
+    goal_now = state[[GX, GY]]
+    ahead = float(torch.cdist(goal_now.reshape(1, 2), route).argmin()) - HERE
+    goal = _route_at(route, s_all + ahead * ROUTE_SPACING)
+    return pos.float(), goal.float()
+
+
+class DriverImaginedEnv(EnvBase):
+    """The hybrid world model as a planner's env: ``imagine(root, sequences, params)`` with ``params`` a list of
+    driver rows (:class:`DriverParams` or ``[8]`` tensors; each imagined at the reaction quantiles ``quantiles``),
+    or ``None``: :attr:`drivers`, set by whoever adapts the model (the planner reads it at every decision).
+
+    >>> env = DriverImaginedEnv()
+    >>> env.rows().shape
+    torch.Size([5, 9])
+    """
+
+    def __init__(self, drivers: list[DriverParams] | None = None, quantiles: tuple[float, ...] = QUANTILES) -> None:
+        super().__init__(batch_size=torch.Size([]))
+        self._batch_locked = False
+        self.drivers = list(drivers) if drivers else [DriverParams()]
+        self.quantiles = tuple(quantiles)
+        self.action_spec = Categorical(N_INSTRUCTIONS)
+        self.observation_spec = Composite(observation=Unbounded((STATE_DIM,)))
+        self.reward_spec = Unbounded((1,))
+
+    # the model imagines whole sequences from a real root (what a planner asks); it is not stepped one action at a time
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        raise NotImplementedError("DriverImaginedEnv only imagines sequences from a real root: call imagine()")
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        raise NotImplementedError("DriverImaginedEnv only imagines sequences from a real root: call imagine()")
+
+    def _set_seed(self, seed: int | None) -> None:
+        pass
+
+    def rows(self, params: list | None = None) -> torch.Tensor:
+        """``[M, 9]``: every driver row at every reaction quantile."""
+        drivers = params if params is not None else self.drivers
+        base = torch.stack([d.tensor() if isinstance(d, DriverParams) else torch.as_tensor(d, dtype=torch.float64)
+                            for d in drivers])
+        z = torch.tensor(self.quantiles, dtype=torch.float64)
+        rows = torch.cat([base.repeat_interleave(len(z), 0), z.repeat(len(base)).unsqueeze(-1)], 1)
+        return rows
+
+    @torch.no_grad()
+    def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``([M, N, H, 2], [M, N, H, 2])`` positions and goals (:func:`imagine_drive`)."""
+        return imagine_drive(root, sequences, self.rows(params))

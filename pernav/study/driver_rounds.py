@@ -1,0 +1,161 @@
+"""``adapt_driver`` in a study (:mod:`pernav.learners.driver`): its offline phase, each online round's ``U(P, tau)``,
+its Follow-The-Meta-Leader update, its ablations, and ``best_shift``, the reference every gap is measured against.
+
+Methods:
+
+* ``adapt_driver``: the meta model ``P`` (meta-trained offline on simulated population drivers, then by FTML after
+  every online round), ``U(P, tau)`` on the round's explore drive (from this user's earlier estimate when it drove
+  before), updated within each drive, MPC tree search on the hybrid model;
+* ``adapt_driver_static``: without adaptation (the meta model's centre alone, in every drive);
+* ``adapt_driver_prior``: without meta-learning (``P`` the population's statistics, never meta-trained);
+* ``adapt_driver_formula``: ``adapt_driver``'s estimate, but the prompts re-timed by the belief's formula instead of
+  the planner;
+* ``best_shift``: explore's rule shifted by the constant number of steps (:data:`SHIFTS`) that is cheapest for this
+  round's user on the true simulator, chosen on selection episodes whose seeds differ from the evaluation's (so that
+  the minimum of noisy costs does not flatter it), then evaluated on the round's episodes.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import torch
+
+from pernav.learners.answers import LabelledDrive
+from pernav.learners.belief import AnswerDetector
+from pernav.learners.driver import DriverBelief, DriverPrior, DriverTracker, Estimate, Evidence, meta_train
+from pernav.learners.outcomes import SwerveDetector
+
+__all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_driver"]
+
+DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "adapt_driver_formula")
+#: the constant shifts (steps; > 0 earlier) best_shift chooses from: as far back as the env's plan reaches, 3 ahead
+SHIFTS = (-2, -1, 0, 1, 2, 3)
+#: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
+#: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain)
+DRIVER_PLANNER: dict[str, Any] = {"horizon": 12, "advance": 6, "delay": 2,
+                                  "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None}}
+CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise the model reads from it
+
+
+def _sigma(drives: list[LabelledDrive]) -> float:
+    """One prompt's log-SD of its reaction delay around its driver's, from the offline drives' labelled answers."""
+    logs = []
+    for d in drives:
+        own = [math.log(float(a.delays[k])) for a, k in zip(d.answers, d.labels, strict=True) if k >= 0]
+        if len(own) >= 2:
+            mean = sum(own) / len(own)
+            logs += [x - mean for x in own]
+    return float(torch.tensor(logs).std()) if len(logs) > 2 else 0.3
+
+
+def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise: float, outlier: float
+               ) -> dict[str, Any]:
+    """The offline phase: ``P0``, the population's statistics (its drivers' ``log R`` and ``D``, known: they are
+    simulated; one prompt's spread from their labelled answers; the belief's detectors and error rates), and ``P``,
+    ``P0`` meta-trained on the same drivers (each drive's first half adapts, its second half scores)."""
+    prior = belief_model["prior"]
+    decision = prior["decision"]
+    log_r = torch.tensor([math.log(d.reaction_time) for d in drives], dtype=torch.float64)
+    D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
+    p0 = DriverPrior((float(log_r.mean()), float(D.mean())), (float(log_r.std()), float(D.std())),
+                     sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
+                     false=float(decision["false"]))
+    detector, swerve = _detectors(belief_model)
+    pairs = []
+    for d in drives:
+        belief = DriverBelief(p0)
+        tracker = DriverTracker(detector, belief, swerve)
+        tracker.reset()
+        for step in d.steps:
+            tracker.observe(step["instruction"], step["played"], step["prompt_end"], step["frames"], step["time"],
+                            step["junction"], step["missed"])
+        tracker.finish()
+        pairs.append(belief.evidence.halves())
+    meta = meta_train(p0, pairs)
+    return {"detector": belief_model["detector"], "swerve": belief_model["swerve"], "prior0": p0.to_dict(),
+            "prior": meta.to_dict(), "offline_pairs": [(a.state(), b.state()) for a, b in pairs]}
+
+
+def _detectors(model: dict[str, Any]) -> tuple[AnswerDetector, SwerveDetector | None]:
+    detector = AnswerDetector()
+    detector.load_state_dict(model["detector"])
+    swerve = None
+    if model.get("swerve") is not None:
+        swerve = SwerveDetector()
+        swerve.load_state_dict(model["swerve"])
+    return detector, swerve
+
+
+def _cruise(trajectory: Any) -> float:
+    speeds = trajectory["next", "frames"][..., 0].reshape(-1).double()
+    return float(speeds.quantile(CRUISE_QUANTILE)) if len(speeds) else 10.0
+
+
+class DriverState:
+    """The learner's state in a run (a checkpoint keeps :meth:`to_dict`): the offline fit, the meta model ``P``, the
+    online rounds' ``(tau, other drives)`` evidence, each user's estimate (per ablation) and what it read per round."""
+
+    def __init__(self, data: dict[str, Any]) -> None:
+        self.data = data
+        data.setdefault("online_pairs", [])
+        data.setdefault("estimates", {})
+        data.setdefault("rounds", {})
+        self.detector, self.swerve = _detectors(data)
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.data
+
+    def prior(self, method: str) -> DriverPrior:
+        return DriverPrior.from_dict(self.data["prior0" if method == "adapt_driver_prior" else "prior"])
+
+    def tracker(self, method: str, start: Estimate | None, cruise: float) -> DriverTracker:
+        belief = DriverBelief(self.prior(method), start, adapt=method != "adapt_driver_static", cruise=cruise)
+        return DriverTracker(self.detector, belief, self.swerve, formula=method == "adapt_driver_formula")
+
+    def read_tau(self, user: str, label: str, tau: Any, methods: list[str]) -> dict[str, DriverTracker]:
+        """Each method's tracker for the round's episodes: ``U`` on ``tau`` from this user's estimate so far (the
+        meta model's centre on a first drive), and the evidence ``tau`` gave (kept for the meta update)."""
+        cruise = _cruise(tau)
+        chains = {"adapt_driver_prior" if m == "adapt_driver_prior" else "adapt_driver"
+                  for m in methods if m != "adapt_driver_static"}
+        estimates: dict[str, Estimate] = {}
+        for key in sorted(chains):
+            saved = self.data["estimates"].get(key, {}).get(user)
+            reader = self.tracker(key, Estimate(**saved) if saved else None, cruise)
+            reader.observe_drive(tau)
+            estimates[key] = estimate = reader.carried()
+            self.data["estimates"].setdefault(key, {})[user] = {"phi": estimate.phi, "sd": estimate.sd,
+                                                               "stepped": estimate.stepped}
+            if key == "adapt_driver":
+                self.data["tau_evidence"] = reader.belief.evidence.state()
+            self.data["rounds"].setdefault(label, {})[key] = {
+                "reaction_time": round(estimate.reaction_time, 4), "decision_time": round(estimate.phi[1], 4),
+                "sd": [round(x, 4) for x in estimate.sd], "stepped": estimate.stepped, "cruise": round(cruise, 3),
+                "evidence": len(reader.belief.evidence)}
+        out = {}
+        for method in methods:
+            key = "adapt_driver_prior" if method == "adapt_driver_prior" else "adapt_driver"
+            out[method] = self.tracker(method, estimates.get(key) if method != "adapt_driver_static" else None, cruise)
+        return out
+
+    def evidence_of(self, trajectory: Any, tracker: DriverTracker) -> Evidence:
+        reader = tracker.copy()
+        reader.observe_drive(trajectory)
+        return reader.belief.evidence
+
+    def meta_update(self, others: list[Evidence]) -> None:
+        """FTML: ``P`` minimizes, over the offline drivers and every online round so far, the loss of the round's
+        other drives under ``U(P, tau)``."""
+        tau = self.data.pop("tau_evidence", None)
+        if tau is None:
+            return
+        other = Evidence()
+        for e in others:
+            other = other + e
+        self.data["online_pairs"].append((tau, other.state()))
+        pairs = [(Evidence.from_state(a), Evidence.from_state(b))
+                 for a, b in [*self.data["offline_pairs"], *self.data["online_pairs"]]]
+        seed = len(self.data["online_pairs"])  # each round its own draws, the same in every run
+        self.data["prior"] = meta_train(DriverPrior.from_dict(self.data["prior"]), pairs, steps=20, seed=seed).to_dict()
