@@ -1,4 +1,5 @@
-"""Shared by the study tests: one uninterrupted smoke study per test session, and killing a study once a
+"""Shared by the study tests: one uninterrupted smoke study per test session (and one of the mini study, the smoke
+study cut to what the tests of Ray, SIGKILL, NaN losses and a re-timed tau need), and killing a study once a
 checkpoint is written, then resuming it."""
 
 from __future__ import annotations
@@ -53,6 +54,42 @@ def shared_study(tmp_path_factory, name: str, cfg: Any = None, workers: int = 1)
         assert json.loads(json.dumps(results)) == json.loads((out / "results.json").read_text())  # as returned
 
     return shared_folder(tmp_path_factory, name, build)
+
+
+# the mini study: the smoke preset's first two rounds (offline, then one online round: a checkpoint to resume from
+# and an evaluation after it) with explore and the two model learners (sysid, adapt: their buffers, ensembles and
+# meta-learner state are what a resume must restore): about 20 s, against 2 minutes for the smoke study
+MINI_METHODS = ("explore", "sysid", "adapt")
+MINI_ROUNDS = 2
+
+
+def mini_config() -> Any:
+    """The mini study's configuration (the methods in the order ``pernav study --methods`` gives them)."""
+    from pernav.study import preset
+    from pernav.study.config import METHODS
+
+    cfg = preset("smoke")
+    cfg.methods = [m for m in METHODS if m in MINI_METHODS]
+    cfg.schedule = cfg.schedule[:MINI_ROUNDS]
+    return cfg
+
+
+def mini_arguments(folder: Path) -> list[str]:
+    """The ``pernav study`` options that run :func:`mini_config` (its schedule written to a file in ``folder``)."""
+    schedule = folder / "mini_schedule.json"
+    schedule.write_text(json.dumps([{k: v for k, v in e.to_dict().items() if v is not None}
+                                    for e in mini_config().schedule]))
+    return ["--preset", "smoke", "--methods", *MINI_METHODS, "--schedule", str(schedule)]
+
+
+def mini_study(tmp_path_factory) -> Path:
+    """The uninterrupted single-process mini study (:func:`mini_config`), run once per test session: its folder."""
+    return shared_study(tmp_path_factory, "mini_reference", mini_config())
+
+
+def mini_reference(tmp_path_factory) -> dict:
+    """The uninterrupted single-process mini study's results, less its wall time."""
+    return without_wall_time(json.loads((mini_study(tmp_path_factory) / "results.json").read_text()))
 
 
 def smoke_reference(tmp_path_factory) -> dict:

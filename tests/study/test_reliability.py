@@ -14,28 +14,31 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import shared_study, smoke_reference, without_wall_time
+from study_helpers import mini_arguments, mini_config, mini_reference, shared_study, without_wall_time
 
 import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
 from pernav.cli import main
-from pernav.study import preset, run_study
+from pernav.study import run_study
 
-CMD = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke"]
+CMD = [sys.executable, "-m", "pernav.cli", "study"]
 ENV = {**os.environ, "OMP_WAIT_POLICY": "PASSIVE"}
 
 
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> dict:
-    """The uninterrupted single-process smoke study."""
-    return smoke_reference(tmp_path_factory)
+    """The uninterrupted single-process mini study (study_helpers.mini_config: the smoke study's offline round and
+    first online round, explore, sysid and adapt): where the work ran, or how often it was killed, is what these
+    tests change, not which methods ran."""
+    return mini_reference(tmp_path_factory)
 
 
 @pytest.mark.slow
 def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
     import ray  # noqa: F401  (an install without the ray extra must fail here, not skip)
     out = tmp_path / "ray"
-    proc = subprocess.run([*CMD, "--out", str(out), "--ray", "--workers", "2"], env=ENV, capture_output=True, text=True)
+    proc = subprocess.run([*CMD, *mini_arguments(tmp_path), "--out", str(out), "--ray", "--workers", "2"], env=ENV,
+                          capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = json.loads((out / "results.json").read_text())
     assert got["wall_time"]["ray"] is True
@@ -45,12 +48,14 @@ def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
 @pytest.mark.slow
 def test_sigkill_at_random_moments_then_resume_gives_the_same_results(reference, tmp_path):
     # two kills at random moments (mid-round, between rounds or mid-checkpoint), the second one into the resumed
-    # run, then a resume to the end: one study run, two interruptions of either kind
+    # run, then a resume to the end: one study run, two interruptions of either kind. The mini study takes about
+    # 25 s (5 s to start, its offline round checkpointed at about 10 s): the first kill falls in its first 18 s
+    cmd = [*CMD, *mini_arguments(tmp_path)]
     out, rng, report = tmp_path / "killed", random.Random(0), []
     for attempt in range(2):
-        delay = rng.uniform(4.0, 25.0) if attempt == 0 else rng.uniform(3.0, 12.0)
-        cmd = [*CMD, "--out", str(out), *(["--resume"] if attempt else [])]
-        proc = subprocess.Popen(cmd, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        delay = rng.uniform(4.0, 18.0) if attempt == 0 else rng.uniform(3.0, 10.0)
+        proc = subprocess.Popen([*cmd, "--out", str(out), *(["--resume"] if attempt else [])], env=ENV,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         time.sleep(delay)
         killed = proc.poll() is None
         proc.send_signal(signal.SIGKILL)
@@ -58,7 +63,7 @@ def test_sigkill_at_random_moments_then_resume_gives_the_same_results(reference,
         manifest = out / "checkpoints" / "Town1" / "manifest.json"
         done = json.loads(manifest.read_text())["index"] + 1 if manifest.exists() else 0
         report.append(f"killed={killed} after {delay:.1f} s with {done} entries checkpointed")
-    resumed = subprocess.run([*CMD, "--out", str(out), "--resume"], env=ENV, capture_output=True, text=True)
+    resumed = subprocess.run([*cmd, "--out", str(out), "--resume"], env=ENV, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert without_wall_time(json.loads((out / "results.json").read_text())) == reference
     print("; ".join(report))
@@ -103,9 +108,9 @@ def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplo
     # single models train through ftml, ensembles through one batched pass in ensemble: NaN both
     monkeypatch.setattr(ftml, "multistep_loss", sometimes_nan)
     monkeypatch.setattr(ensemble, "multistep_loss", sometimes_nan)
-    cfg = preset("smoke")
-    cfg.methods = ["explore", "sysid", "adapt"]
-    results = run_study(cfg, tmp_path / "nan", report=False)
+    # the mini study (explore, sysid, adapt): both NaN losses fall in its offline round's warm start, and its online
+    # round evaluates and trains what the warm start left
+    results = run_study(mini_config(), tmp_path / "nan", report=False)
     skipped = sum(d["skipped_updates"] for d in results["diagnostics"]["Town1"].values())
     assert skipped >= 2  # the 7-action warm start (shared by sysid and adapt) and the 21-action one
     assert "non-finite model loss" in caplog.text

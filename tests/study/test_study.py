@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 import pytest
-from study_helpers import shared_study, smoke_reference, without_wall_time
+from study_helpers import mini_config, mini_study, shared_study, smoke_reference, without_wall_time
 
 from pernav.cli import main
 from pernav.study import ScheduleError, StudyConfig, load_schedule, paper_schedule, parse_schedule, preset, run_study
@@ -248,18 +248,25 @@ def test_train_options_parse_by_field_type_and_the_cli_exits_2_naming_the_bad_on
 
 
 @pytest.mark.slow
-def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path, capsys):
+def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path_factory, tmp_path, capsys):
     import torch
 
     from pernav.study import PresetError
     from pernav.trainer.buffers import RoundBuffers
 
     def run(tau: str) -> tuple[dict, RoundBuffers]:
-        cfg = _smoke(["Town1"])
-        cfg.methods, cfg.tau_policy, cfg.schedule = ["explore", "sysid"], tau, cfg.schedule[:2]
-        results = run_study(cfg, tmp_path / tau)
-        last = sorted((tmp_path / tau / "checkpoints" / "Town1").glob("entry_*"))[-1]
-        return results, RoundBuffers.load(last / "buffers_sysid")
+        # the mini study (Town1, the offline round and an online one; explore, sysid, adapt): with the preset's
+        # explore tau it is the shared one that tests/study/test_reliability.py compares against
+        cfg = mini_config()
+        assert cfg.towns == ["Town1"] and len(cfg.schedule) == 2 and {"explore", "sysid"} <= set(cfg.methods)
+        if tau == "explore":
+            assert cfg.tau_policy == "explore"
+            out = mini_study(tmp_path_factory)
+        else:
+            cfg.tau_policy, out = tau, tmp_path / tau
+            run_study(cfg, out)
+        last = sorted((out / "checkpoints" / "Town1").glob("entry_*"))[-1]
+        return json.loads((out / "results.json").read_text()), RoundBuffers.load(last / "buffers_sysid")
 
     explore, explore_buffers = run("explore")
     retimed, retimed_buffers = run("retimed")
