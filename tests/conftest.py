@@ -11,23 +11,24 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 # The longest checks, two by two, in the order they start under `make test` (pytest -n 2 --dist load
 # --maxschedchunk 2 hands a worker the next two tests whenever it is down to its last one, so each pair runs on one
-# worker, one test after the other). A pair shares what its tests build: the recorded-drives study and its resume,
-# the study on a pool of two and its comparison, the sweeps of tests/world/test_acceptance.py, the development
-# drivers of tests/learners/test_belief.py (module fixtures, built again on every worker that runs one of their tests).
-# The shared smoke study (tests/study/study_helpers.py) is built first; the checks that compare against it (the pool
-# of two, Ray, SIGKILL, then the rest) reach a worker only once one of its long checks has run, so no worker waits
+# worker, one test after the other). A pair shares what its tests build: the shared smoke study (Town1 and Town2 on
+# a pool of two, tests/study/study_helpers.py) and the pool comparison's Town2 alone, the recorded-drives study and
+# its resume, the sweeps of tests/world/test_acceptance.py, the development drivers of tests/learners/test_belief.py
+# (module fixtures, built again on every worker that runs one of their tests). The smoke study is built first; the
+# mini study (Ray, SIGKILL) is built by the first of its checks, on the other worker; the checks that only read the
+# smoke study (the timing learner's, then the rest) reach a worker only once two pairs have run, so no worker waits
 # on the other's study. Ids without parameters name every case of a parametrized test.
 PAIRS = (
-    ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
-     "tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[slow_fog_truck]"),
+    ("tests/study/test_study.py::test_smoke_results_match_the_schema",
+     "tests/study/test_study.py::test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers"),
     ("tests/study/test_recorded_schedule.py::test_a_study_learns_from_recorded_and_simulated_drives",
      "tests/study/test_recorded_schedule.py::test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_"
      "same_results"),
-    ("tests/study/test_study.py::test_smoke_results_match_the_schema",
-     "tests/study/test_study.py::test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers"),
     ("tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[elderly_like]",
      "tests/study/test_reliability.py::test_smoke_study_on_local_ray_equals_single_process"),
-    ("tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results",
+    ("tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[slow_fog_truck]",
+     "tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results"),
+    ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
      "tests/world/test_acceptance.py::test_explore_completes_routes_with_the_average_driver"),
     ("tests/world/test_acceptance.py::test_best_lead_time_is_personal",
      "tests/world/test_acceptance.py::test_too_late_misses_and_too_early_goes_wrong"),

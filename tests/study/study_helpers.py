@@ -1,6 +1,6 @@
-"""Shared by the study tests: one uninterrupted smoke study per test session (and one of the mini study, the smoke
-study cut to what the tests of Ray, SIGKILL, NaN losses and a re-timed tau need), and killing a study once a
-checkpoint is written, then resuming it."""
+"""Shared by the study tests: one uninterrupted smoke study per test session (Town1 and Town2 on a pool of two), one
+of the mini study (the smoke study cut to what the tests of Ray, SIGKILL, NaN losses and a re-timed tau need), and
+killing a study once a checkpoint is written, then resuming it."""
 
 from __future__ import annotations
 
@@ -92,7 +92,21 @@ def mini_reference(tmp_path_factory) -> dict:
     return without_wall_time(json.loads((mini_study(tmp_path_factory) / "results.json").read_text()))
 
 
-def smoke_reference(tmp_path_factory) -> dict:
-    """The uninterrupted single-process smoke study (Town1), less its wall time."""
-    out = shared_study(tmp_path_factory, "smoke_reference")
-    return without_wall_time(json.loads((out / "results.json").read_text()))
+def two_towns() -> Any:
+    """The smoke study of Town1 and Town2, Town2 without the last round: Town1 the whole smoke study, Town2 (its
+    offline round and an online one, every method) the town beside it."""
+    import dataclasses
+
+    from pernav.study import preset
+
+    cfg = preset("smoke")
+    cfg.towns = ["Town1", "Town2"]
+    *rounds, last = cfg.schedule
+    cfg.schedule = [*rounds, dataclasses.replace(last, towns=("Town1",))]
+    return cfg
+
+
+def smoke_study(tmp_path_factory) -> Path:
+    """:func:`two_towns` on a pool of two workers (each town in a process of its own), run once per test session:
+    the shared smoke study. Its Town1 is the whole smoke study (every method, every round). Returns its folder."""
+    return shared_study(tmp_path_factory, "smoke_two_workers", two_towns(), workers=2)

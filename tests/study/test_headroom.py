@@ -120,11 +120,11 @@ def test_a_late_answering_driver_is_prompted_earlier_and_one_inside_the_slack_as
 
 @pytest.mark.slow
 def test_a_study_runs_the_timing_learner_and_records_its_beliefs(tmp_path_factory) -> None:
-    from study_helpers import shared_study
+    from study_helpers import smoke_study
 
     assert "timing" in preset("smoke").methods  # the shared smoke study runs every method
     assert "timing" in preset("default").methods  # it joined `make study` after its sized judging (docs/personal.md)
-    results = json.loads((shared_study(tmp_path_factory, "smoke_reference") / "results.json").read_text())
+    results = json.loads((smoke_study(tmp_path_factory) / "results.json").read_text())  # Town1: the whole smoke study
     beliefs = results["diagnostics"]["Town1"]["timing"]["beliefs"]
     assert set(beliefs) == {"Online 0", "Online 8"}
     for it in results["iterations"]:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from study_helpers import mini_arguments, mini_config, mini_reference, shared_study, without_wall_time
+from study_helpers import mini_arguments, mini_config, mini_reference, mini_study, without_wall_time
 
 import pernav.trainer.ensemble as ensemble
 import pernav.trainer.ftml as ftml
@@ -71,8 +71,8 @@ def test_sigkill_at_random_moments_then_resume_gives_the_same_results(reference,
 
 @pytest.mark.slow
 def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path_factory, tmp_path, capsys):
-    out = tmp_path / "study"  # a copy of the finished smoke study, its checkpoints then damaged
-    shutil.copytree(shared_study(tmp_path_factory, "smoke_reference"), out)
+    out = tmp_path / "study"  # a copy of the finished mini study, its checkpoints then damaged
+    shutil.copytree(mini_study(tmp_path_factory), out)
     ckpt = next((out / "checkpoints" / "Town1").glob("entry_*"))
     state = ckpt / "state.pt"
     data = bytearray(state.read_bytes())
@@ -84,7 +84,7 @@ def test_corrupted_checkpoint_is_reported_with_its_file(tmp_path_factory, tmp_pa
     with pytest.raises(checkpoints.CheckpointError, match="state.pt"):
         checkpoints.load_checkpoint(out / "checkpoints" / "Town1", {})
     # through the CLI: one line naming the file, exit code 2, results untouched
-    argv = ["study", "--preset", "smoke", "--out", str(out), "--resume"]
+    argv = ["study", *mini_arguments(tmp_path), "--out", str(out), "--resume"]
     capsys.readouterr()
     code = main(argv)
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]

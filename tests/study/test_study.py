@@ -2,40 +2,23 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 
 import pytest
-from study_helpers import mini_config, mini_study, shared_study, smoke_reference, without_wall_time
+from study_helpers import mini_config, mini_study, shared_study, smoke_study, two_towns, without_wall_time
 
 from pernav.cli import main
-from pernav.study import ScheduleError, StudyConfig, load_schedule, paper_schedule, parse_schedule, preset, run_study
+from pernav.study import ScheduleError, load_schedule, paper_schedule, parse_schedule, preset, run_study
 
 METHOD_KEYS = {"tracking_cost", "collisions", "vehicle_collisions", "edge_strikes", "completion", "episodes"}
 SUMMARY_KEYS = {"tracking_cost_mean", "collisions_mean", "collisions_std", "completion_mean"}
 
 
-def _smoke(towns: list[str]):
-    cfg = preset("smoke")
-    cfg.towns = towns
-    return cfg
-
-
-def _two_towns() -> StudyConfig:
-    """The smoke study of Town1 and Town2, Town2 without the last round: each town runs in a worker of its own,
-    Town1 the whole smoke study, which the study's own process runs in :func:`smoke_reference`; Town2 (its offline
-    round and an online one, every method) is the town beside it and the schema's second town."""
-    cfg = _smoke(["Town1", "Town2"])
-    *rounds, last = cfg.schedule
-    cfg.schedule = [*rounds, dataclasses.replace(last, towns=("Town1",))]
-    return cfg
-
-
 @pytest.fixture(scope="module")
 def two_workers(tmp_path_factory) -> tuple[Path, dict]:
-    """:func:`_two_towns` on a pool of two workers (run once per session)."""
-    out = shared_study(tmp_path_factory, "smoke_two_workers", _two_towns(), workers=2)
+    """study_helpers.two_towns on a pool of two workers (run once per session: the shared smoke study)."""
+    out = smoke_study(tmp_path_factory)
     return out, json.loads((out / "results.json").read_text())
 
 
@@ -71,12 +54,18 @@ def test_smoke_results_match_the_schema(two_workers):
 
 @pytest.mark.slow
 def test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers(two_workers, tmp_path_factory):
-    """Town1 run in a worker process beside Town2 gives what it gives alone in the study's own process."""
-    one = smoke_reference(tmp_path_factory)
+    """Town2 run in a worker process beside Town1 gives what it gives alone in the study's own process (its offline
+    round and its online one, every method: the smaller of the two towns, not the whole smoke study again)."""
+    cfg = two_towns()
+    cfg.towns, cfg.schedule = ["Town2"], [e for e in cfg.schedule if e.runs_in("Town2")]
+    assert [e.label for e in cfg.schedule] == ["Offline 0", "Online 0"]
+    one = without_wall_time(json.loads((shared_study(tmp_path_factory, "town2_alone", cfg) / "results.json")
+                                       .read_text()))
     two = without_wall_time(two_workers[1])
-    assert [it["towns"]["Town1"] for it in two["iterations"]] == [it["towns"]["Town1"] for it in one["iterations"]]
+    assert [it["towns"]["Town2"] for it in two["iterations"] if "Town2" in it["towns"]] == \
+        [it["towns"]["Town2"] for it in one["iterations"]]
     for key in ("summary", "regret", "diagnostics"):
-        assert two[key]["Town1"] == one[key]["Town1"], key
+        assert two[key]["Town2"] == one[key]["Town2"], key
 
 
 def test_paper_schedule_is_the_table():
