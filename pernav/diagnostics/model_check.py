@@ -33,6 +33,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 import matplotlib.pyplot as plt
@@ -45,6 +46,7 @@ from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module, navigation_of
 from pernav.model.adapt import adapt, meta_parameters
+from pernav.model.driver import DriverImaginedEnv
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import env_planning_config
@@ -90,11 +92,14 @@ def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsMod
     return model
 
 
-def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2) -> dict[str, np.ndarray]:
-    """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's)."""
-    out: dict[str, list] = {"true": [], **{k: [] for k in models}}
+def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2, K: int = 10, ceiling: int = 0
+                         ) -> dict[str, np.ndarray]:
+    """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's; a model is an env with
+    ``imagine`` and its parameters, ``None``: its own), from the history env of window ``K``; with ``ceiling``, also
+    the true simulator's mean over that many fresh samples (``"ceiling"``)."""
+    out: dict[str, list] = {"true": [], **({"ceiling": []} if ceiling else {}), **{k: [] for k in models}}
     for ep in range(episodes):
-        env = driver_env(driver, town, ep, 900 + ep, next(iter(models.values()))[0].dynamics.K)
+        env = driver_env(driver, town, ep, 900 + ep, K)
         td = env.reset()
         nav = navigation_of(env)
         for _t in range(400):
@@ -107,14 +112,40 @@ def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2
                 pos, _ = TrueDynamicsEnv(nav, samples=2, seed=_t).imagine(td, pair)
                 idx = [s - 1 for s in STEPS]
                 out["true"].append((pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+                if ceiling:  # the simulator's own mean over ``ceiling`` fresh samples: what r can reach
+                    p, _ = TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + _t).imagine(td, pair)
+                    out["ceiling"].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
                 for name, (env_m, params) in models.items():
-                    p, _ = env_m.imagine(td, pair, params=params)  # [M, 2, H, 2]: the members' mean
+                    p, _ = (env_m.imagine(td, pair, params=params) if params is not None  # [M, 2, H, 2]: the rows'
+                            else env_m.imagine(td, pair))  # mean: members, samples or quantiles
                     out[name].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
             td = env.step(explore_module()(td))
             if bool(td["next", "done"]):
                 break
             td = td["next"]
     return {k: np.array(v) for k, v in out.items()}
+
+
+def _adapt_models(study: Any, tau: TensorDictBase, driver: str, args: argparse.Namespace) -> dict[str, tuple]:
+    """adapt's models for ``driver``: the meta model, ``U(P, tau)`` as the study adapts, the personal and the
+    per-driver models."""
+    meta, members, train = DynamicsModel(**study.model_config), study.members, study.train
+    step = {"alpha": train.alpha, "L": train.L, "max_norm": None}  # fixed: the step unclipped
+    if args.adapt_step == "study":
+        step.update(max_norm=train.max_grad_norm, backtrack=train.backtrack)
+    params, adapted = [], []
+    for state in members:  # U(P, tau) of every member, as the study adapts
+        meta.load_state_dict(state)
+        params.append(meta_parameters(meta).detach().clone())
+        # clone: with a context U replaces only it, and the rest aliases meta's tensors, which the next
+        # member's load_state_dict overwrites in place
+        adapted.append(adapt(meta, tau, first_order=True, **step).detach().clone())
+    own = per_driver_model(driver, args.town, meta)
+    imagined = ImaginedNavigationEnv(make_world_model(meta))
+    return {"meta": (imagined, params), "adapted": (imagined, adapted),
+            "personal": (imagined, personal_params(meta, members, tau, driver, args.town, args.calibration,
+                                                   args.personal_updates)),
+            "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
 
 
 def main(argv: list[str] | None = None, prog: str | None = None) -> int:
@@ -129,42 +160,38 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
                     help="the adaptation trajectory's policy, as the study's tau_policy option (default explore)")
     ap.add_argument("--calibration", type=int, default=4, help="re-timed drives of the personal model (default 4)")
     ap.add_argument("--personal-updates", type=int, default=100, help="updates of the personal model (default 100)")
+    ap.add_argument("--ceiling", type=int, default=0, help="also the true simulator's mean over this many fresh "
+                    "samples against the same truth: the r a perfect model of the expectation reaches (default 0: not "
+                    "measured; 20 takes about 10x the diagnostic's time)")
     ap.add_argument("--adapt-step", choices=["study", "fixed"], default="study",
                     help="U as the study adapts at test time (default), or its fixed step alpha unclipped")
     args = ap.parse_args(argv)
     torch.set_num_threads(1)
-    try:  # the finished study's adapt ensemble and the settings it adapted with
-        study = FinishedStudy.open(args.study).model(args.town, "adapt")
+    try:  # the finished study's adapt ensemble and the settings it adapted with; adapt_driver's state
+        finished = FinishedStudy.open(args.study)
+        study = finished.model(args.town, "adapt") if "adapt" in finished.model_learners else None
+        driver_state = finished.driver_state(args.town) if "adapt_driver" in finished.methods else None
+        if study is None and driver_state is None:
+            raise StudyError(f"the study in {args.study!r} ran neither adapt nor adapt_driver")
     except StudyError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    meta, members, train = DynamicsModel(**study.model_config), study.members, study.train
-    step = {"alpha": train.alpha, "L": train.L, "max_norm": None}  # fixed: the step unclipped
-    if args.adapt_step == "study":
-        step.update(max_norm=train.max_grad_norm, backtrack=train.backtrack)
+    K = finished.history(args.town)
     rows, pooled = {}, {}
     for driver in args.drivers:
         retimed = args.tau_policy == "retimed"
         policy = RetimedExplore(seed=77) if retimed else explore_module()
-        tau = drive(driver_env(driver, args.town, 7, 77, meta.K, PLANNING if retimed else None), policy)
-        params, adapted = [], []
-        for state in members:  # U(P, tau) of every member, as the study adapts
-            meta.load_state_dict(state)
-            params.append(meta_parameters(meta).detach().clone())
-            # clone: with a context U replaces only it, and the rest aliases meta's tensors, which the next
-            # member's load_state_dict overwrites in place
-            adapted.append(adapt(meta, tau, first_order=True, **step).detach().clone())
-        own = per_driver_model(driver, args.town, meta)
-        imagined = ImaginedNavigationEnv(make_world_model(meta))
-        models = {"meta": (imagined, params), "adapted": (imagined, adapted),
-                  "personal": (imagined, personal_params(meta, members, tau, driver, args.town,
-                                                             args.calibration, args.personal_updates)),
-                  "per-driver": (ImaginedNavigationEnv(make_world_model(own)), None)}
-        div = approach_divergences(driver, args.town, models)
+        tau = drive(driver_env(driver, args.town, 7, 77, K, PLANNING if retimed else None), policy)
+        models = _adapt_models(study, tau, driver, args) if study is not None else {}
+        if driver_state is not None:  # the hybrid model: U(P, tau) and, without adaptation, P's centre
+            trackers = driver_state.read_tau(driver, "diagnosis", tau, ["adapt_driver", "adapt_driver_static"])
+            models["adapt_driver"] = (DriverImaginedEnv(trackers["adapt_driver"].belief.drivers()), None)
+            models["adapt_driver_meta"] = (DriverImaginedEnv(trackers["adapt_driver_static"].belief.drivers()), None)
+        div = approach_divergences(driver, args.town, models, K=K, ceiling=args.ceiling)
         for name, values in div.items():
             pooled.setdefault(name, []).append(values)
         rows[driver] = {"states": int(div["true"].shape[0]), "true_mean": [round(float(x), 2) for x in div["true"].mean(0)]}
-        for name in models:
+        for name in [k for k in div if k != "true"]:
             corr = [float(np.corrcoef(div["true"][:, i], div[name][:, i])[0, 1]) for i in range(len(STEPS))]
             mae = np.abs(div["true"] - div[name]).mean(0)
             rows[driver][name] = {"corr": [round(c, 3) for c in corr], "mae": [round(float(x), 2) for x in mae],
@@ -173,9 +200,12 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     pooled = {k: np.concatenate(v) for k, v in pooled.items()}
     overall = {name: [round(float(np.corrcoef(pooled["true"][:, i], pooled[name][:, i])[0, 1]), 3)
                       for i in range(len(STEPS))] for name in pooled if name != "true"}
+    small = pooled["true"] < 0.5  # where the truth says the timing changes nothing: is the prediction under 1 m?
+    quiet = {name: [round(float((pooled[name][:, i][small[:, i]] < 1.0).mean()), 3) if small[:, i].any() else None
+                    for i in range(len(STEPS))] for name in pooled if name != "true"}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     Path(args.json).write_text(json.dumps({"steps": STEPS, "delay_s": DELAY, "town": args.town, "drivers": rows,
-                                           "pooled_corr": overall,
+                                           "pooled_corr": overall, "under_1m_where_true_under_0_5m": quiet,
                                            "divergences": {k: v.round(2).tolist() for k, v in pooled.items()}},
                                           indent=1))
     if args.plot:

@@ -206,13 +206,14 @@ def tau_loss(phi: torch.Tensor, evidence: Evidence, prior: DriverPrior, centre: 
     return nll(phi, evidence, prior) + 0.5 * (((phi - centre) / spread) ** 2).sum()
 
 
-def _newton(loss, start: torch.Tensor, create_graph: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
-    """One Newton step of ``loss`` from ``start``: ``(step, curvature)`` (the curvature made positive definite)."""
+def _newton(loss, start: torch.Tensor, floor: float, create_graph: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+    """One Newton step of ``loss`` from ``start``: ``(step, curvature)``, the curvature's eigenvalues lifted to at least
+    ``floor`` (the proximal term's smallest: the step is never longer than the start's spread allows)."""
     with torch.enable_grad():  # also where a caller reads under no_grad (a tracker does)
-        return _newton_step(loss, start, create_graph)
+        return _newton_step(loss, start, floor, create_graph)
 
 
-def _newton_step(loss, start: torch.Tensor, create_graph: bool) -> tuple[torch.Tensor, torch.Tensor]:
+def _newton_step(loss, start: torch.Tensor, floor: float, create_graph: bool) -> tuple[torch.Tensor, torch.Tensor]:
     # the point of evaluation is a copy of the start: where the loss's proximal term anchors at the same tensor
     # (meta-training), its derivative along the copy is the term's own, and the meta-gradient flows through both
     phi = start.clone() if create_graph else start.detach().requires_grad_(True)
@@ -221,8 +222,8 @@ def _newton_step(loss, start: torch.Tensor, create_graph: bool) -> tuple[torch.T
                         for i in range(len(grad))])
     hess = 0.5 * (hess + hess.T)
     low = torch.linalg.eigvalsh(hess.detach())[0]
-    if low < 1e-3:  # not convex here: lift the curvature to at least 1e-3 (a damped step)
-        hess = hess + (1e-3 - low) * torch.eye(len(grad), dtype=hess.dtype)
+    if low < floor:  # not convex enough here (a reading in a tail of the likelihood): lift the curvature to the
+        hess = hess + (floor - low) * torch.eye(len(grad), dtype=hess.dtype)  # start's own, a damped step
     step = -torch.linalg.solve(hess, grad if create_graph else grad.detach())
     return step, hess
 
@@ -243,7 +244,8 @@ def adapt_phi(prior: DriverPrior, evidence: Evidence, start: Estimate | None = N
     def loss(phi: torch.Tensor) -> torch.Tensor:
         return tau_loss(phi, evidence, prior, centre, spread)
 
-    step, _ = _newton(loss, centre)
+    floor = float((1 / spread**2).min())
+    step, _ = _newton(loss, centre, floor)
     with torch.no_grad():
         before = float(loss(centre))
         phi, stepped = centre, False
@@ -252,7 +254,7 @@ def adapt_phi(prior: DriverPrior, evidence: Evidence, start: Estimate | None = N
                 phi, stepped = centre + step, True
                 break
             step = step / 2
-    _, hess = _newton(loss, phi)
+    _, hess = _newton(loss, phi, floor)
     sd = torch.linalg.inv(hess).diagonal().clamp(min=MIN_SD**2).sqrt()
     return Estimate(tuple(phi.tolist()), tuple(sd.tolist()), stepped)
 
@@ -288,7 +290,7 @@ def meta_train(prior: DriverPrior, rounds: list[tuple[Evidence, Evidence]], step
                 phi = centre
             else:
                 step, _ = _newton(lambda p, tau=tau, spread=spread: tau_loss(p, tau, prior, centre, spread), centre,
-                                  create_graph=True)
+                                  float((1 / spread.detach() ** 2).min()), create_graph=True)
                 phi = centre + step
             total = total + nll(phi, other, prior)
         optimizer.zero_grad()

@@ -12,9 +12,10 @@ traffic):
 * once a prompt took effect the car brakes toward the driver's turn speed at its deceleration ``brake``;
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
   if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
-  the route;
-* the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, and the goal runs
-  ahead of it on the route as far as it runs ahead now.
+  the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
+  it alone);
+* the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
+  after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
 The parameters are what :mod:`pernav.learners.driver` adapts to a driver from what the navigation senses.
 
@@ -43,14 +44,22 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING, STATE_DIM
-from pernav.model.egocentric import GX, GY, VX, VY
-from pernav.world.constants import AUDIO_DURATION, N_INSTRUCTIONS, PREPARES, Instruction
+from pernav.model.egocentric import VX, VY
+from pernav.world.constants import (
+    AUDIO_DURATION,
+    GOAL_LOOKAHEAD_S,
+    N_INSTRUCTIONS,
+    PREPARES,
+    WAYPOINT_SPACING,
+    Instruction,
+)
 
 __all__ = ["DriverImaginedEnv", "DriverParams", "imagine_drive"]
 
 HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in ``route_ahead``
 SUBSTEPS = 10  # the imagination's steps per one-second decision
 MIN_COMMIT = 4.0  # m: a driver commits no closer to the junction than this
+PROMPT_REACH = 160.0  # m: no prompt is said further than this before its junction (a "prepare" at the latest speeds)
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
 
 
@@ -94,25 +103,11 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return route[i] + frac * (route[i + 1] - route[i])
 
 
-def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
-                  ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
-    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 9]``: the eight
-    :class:`DriverParams` fields and the row's reaction-time quantile ``z``.
-
-    ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
-    ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
-    hist = root["history"].double()
-    route = root["route_ahead"].double()
-    s_junction = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
-    N, H = sequences.shape
-    M = drivers.shape[0]
-    drivers = drivers.double()
-    R, D, sigma, v_turn, brake, cruise, prepared, accel, z = (drivers[:, k].reshape(M, 1) for k in range(9))
-    reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
-    state = hist[-1]
-    v0 = float(torch.hypot(state[VX], state[VY]))
-    cruise = cruise.expand(M, N)
+def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """``([M, N], [M, N])``: when the first "turn"-like prompt and the first "prepare" for the junction ahead take effect
+    (s from now; ``inf``: none), for each row's reaction time ``reaction`` ``[M, 1]`` and each sequence."""
+    N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
     past_actions = torch.where(past.any(-1), past.argmax(-1), torch.zeros(len(past), dtype=torch.long))
@@ -122,12 +117,39 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     played = (actions != Instruction.NONE) & (actions != previous)
     effect = starts + _audio(actions)  # [N, T] heard at the audio's end...
     effect = effect.unsqueeze(0) + reaction.unsqueeze(-1)  # [M, N, T] ...and acted on a reaction later
-    # a prompt that took effect before now shows in the car's speed already, and may be a past junction's
-    effect = torch.where(played.unsqueeze(0) & (effect >= 0), effect, torch.full_like(effect, math.inf))
+    # a prompt of the history is for the junction ahead only if it was said within reach of it (else it was the last
+    # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back
+    reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
+    effect = torch.where((played & reach).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
     first_turn = torch.where(prepare, torch.full_like(effect, math.inf), effect).min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
-    first = torch.minimum(first_turn, first_prepare)  # either chooses the branch
+    return first_turn, first_prepare
+
+
+def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
+    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 10]``: the eight
+    :class:`DriverParams` fields, whether a "prepare" alone chooses the branch (0 or 1) and the row's reaction-time
+    quantile ``z``.
+
+    ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
+    ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
+    hist = root["history"].double()
+    route = root["route_ahead"].double()
+    s_junction = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
+    N, H = sequences.shape
+    M = drivers.shape[0]
+    drivers = drivers.double()
+    R, D, sigma, v_turn, brake, cruise, prepared, accel, follow, z = (drivers[:, k].reshape(M, 1) for k in range(10))
+    reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
+    state = hist[-1]
+    v0 = float(torch.hypot(state[VX], state[VY]))
+    cruise = cruise.expand(M, N)
+    first_turn, first_prepare = _effects(hist, sequences, reaction, s_junction, v0)
+    # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
+    first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
     s = torch.zeros(M, N, dtype=torch.float64)
     v = torch.full((M, N), v0, dtype=torch.float64)
     committed = torch.zeros(M, N, dtype=torch.bool)
@@ -136,7 +158,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     if s_junction - commit_distance.min() <= 0:  # already committed before the root: decided, unknown to us
         committed[:] = True
     dt = 1.0 / SUBSTEPS
-    out_s, out_taken = [], []
+    out_s, out_taken, out_v = [], [], []
     for h in range(H):
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
@@ -152,6 +174,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             s = s + v * dt
         out_s.append(s.clone())
         out_taken.append(taken.clone())
+        out_v.append(v.clone())
     s_all = torch.stack(out_s, -1)  # [M, N, H]
     taken_all = torch.stack(out_taken, -1)
     on_route = _route_at(route, s_all)
@@ -163,10 +186,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     straight = junction + (s_all - s_junction).clamp(min=0.0).unsqueeze(-1) * direction
     missed = (~taken_all) & (s_all > s_junction)
     pos = torch.where(missed.unsqueeze(-1), straight, on_route)
-    # the goal runs ahead on the route by as much as it does now
-    goal_now = state[[GX, GY]]
-    ahead = float(torch.cdist(goal_now.reshape(1, 2), route).argmin()) - HERE
-    goal = _route_at(route, s_all + ahead * ROUTE_SPACING)
+    # the navigation's goal: where the car would be one step on at its speed, along the route
+    v_all = torch.stack(out_v, -1)
+    goal = _route_at(route, s_all + torch.clamp(v_all * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING))
     return pos.float(), goal.float()
 
 
@@ -177,7 +199,7 @@ class DriverImaginedEnv(EnvBase):
 
     >>> env = DriverImaginedEnv()
     >>> env.rows().shape
-    torch.Size([5, 9])
+    torch.Size([10, 10])
     """
 
     def __init__(self, drivers: list[DriverParams] | None = None, quantiles: tuple[float, ...] = QUANTILES) -> None:
@@ -200,13 +222,16 @@ class DriverImaginedEnv(EnvBase):
         pass
 
     def rows(self, params: list | None = None) -> torch.Tensor:
-        """``[M, 9]``: every driver row at every reaction quantile."""
+        """``[M, 10]``: every driver row at every reaction quantile, with and without following a "prepare" alone."""
         drivers = params if params is not None else self.drivers
         base = torch.stack([d.tensor() if isinstance(d, DriverParams) else torch.as_tensor(d, dtype=torch.float64)
                             for d in drivers])
         z = torch.tensor(self.quantiles, dtype=torch.float64)
-        rows = torch.cat([base.repeat_interleave(len(z), 0), z.repeat(len(base)).unsqueeze(-1)], 1)
-        return rows
+        follow = torch.tensor([0.0, 1.0], dtype=torch.float64)  # whether a "prepare" alone chooses the branch
+        n = len(base) * len(follow) * len(z)
+        return torch.cat([base.repeat_interleave(len(follow) * len(z), 0),
+                          follow.repeat_interleave(len(z)).repeat(len(base)).unsqueeze(-1),
+                          z.repeat(len(base) * len(follow)).unsqueeze(-1)], 1).reshape(n, -1)
 
     @torch.no_grad()
     def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list | None = None

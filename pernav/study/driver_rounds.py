@@ -34,7 +34,7 @@ DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "
 SHIFTS = (-2, -1, 0, 1, 2, 3)
 #: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain)
-DRIVER_PLANNER: dict[str, Any] = {"horizon": 12, "advance": 6, "delay": 2,
+DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2,
                                   "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None}}
 CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise the model reads from it
 

@@ -51,6 +51,7 @@ from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
 from pernav.study.checkpoints import final_belief, final_models, load_checkpoint
 from pernav.study.config import BELIEF_DEFAULTS, LEARNERS
+from pernav.study.driver_rounds import DriverState
 from pernav.study.errors import CheckpointError
 from pernav.study.study import ADDED_OPTIONS
 from pernav.trainer.buffers import RoundBuffers
@@ -291,6 +292,19 @@ class FinishedStudy:
         if state.timing_model is None:
             raise StudyError(f"the study in {str(self.folder)!r} did not run the timing learner (add it to its methods)")
         return TimingModel().load_state_dict(state.timing_model)
+
+    def driver_state(self, town: str) -> DriverState:
+        """adapt_driver's state in ``town`` at the study's end: its meta model, detectors and estimates."""
+        self.check_town(town)
+        try:
+            state = load_checkpoint(self.folder / "checkpoints" / town, {})
+        except _UNREADABLE as exc:
+            raise StudyError(f"cannot read the study's {town} checkpoint: {' '.join(str(exc).split())}") from None
+        if state is None:
+            raise StudyError(f"no {town} checkpoint in {str(self.folder)!r} (run the study first)")
+        if state.driver is None:
+            raise StudyError(f"the study in {str(self.folder)!r} did not run adapt_driver (add it to its methods)")
+        return DriverState(state.driver)
 
     def policy(self, learner: str, town: str, tau: TensorDictBase | Sequence[TensorDictBase] | None = None,
                seed: int = 0) -> tuple[StudyPolicy | RetimedPolicy, dict[str, Any]]:

@@ -1,0 +1,116 @@
+"""adapt_driver (pernav.learners.driver, pernav.model.driver): U never makes tau's loss worse, FTML follows the drivers
+seen, the adapted driver part recovers known traits from simulated drives, and the planner on the hybrid model times a
+slow driver's prompts earlier than a quick one's."""
+
+import math
+
+import pytest
+import torch
+from navigation_helpers import shared_value
+
+from pernav.env.torchrl_env import explore_module
+from pernav.learners.answers import fit_belief, labelled_drives
+from pernav.learners.driver import DriverPlanner, DriverPrior, Evidence, adapt_phi, meta_train, tau_loss
+from pernav.learners.outcomes import DECISION_GRID
+from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, fit_driver
+from pernav.trainer.collect import drive, history_env
+from pernav.world.drivers import Context, DriverProfile
+
+
+def _random_evidence(seed: int) -> Evidence:
+    """Answers and outcomes of random shape: sharp, flat, bimodal and absent readings, late and in-time junctions."""
+    g = torch.Generator().manual_seed(seed)
+    answers, outcomes = [], []
+    for _ in range(int(torch.randint(1, 12, (), generator=g))):
+        delays = torch.arange(0.3, 0.3 + 0.1 * int(torch.randint(5, 90, (), generator=g)), 0.1, dtype=torch.float64)
+        probs = torch.rand(len(delays), generator=g, dtype=torch.float64) ** 8
+        probs = probs / probs.sum() * float(torch.rand((), generator=g))
+        answers.append((delays, probs, float(1 - probs.sum())))
+    for _ in range(int(torch.randint(0, 5, (), generator=g))):
+        room = 6.0 * torch.rand((), generator=g, dtype=torch.float64) - DECISION_GRID.double()
+        outcomes.append((room, bool(torch.rand((), generator=g) < 0.5)))
+    return Evidence(answers, outcomes)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_u_never_makes_the_loss_of_tau_worse(seed):
+    g = torch.Generator().manual_seed(100 + seed)
+    prior = DriverPrior.population((float(torch.randn((), generator=g)) * 0.5, 0.4 + float(torch.rand((), generator=g))),
+                                   (2.0 + float(torch.randn((), generator=g)), 0.2 + float(torch.rand((), generator=g))))
+    evidence = _random_evidence(seed)
+    start = torch.tensor(prior.mean, dtype=torch.float64)
+    adapted = adapt_phi(prior, evidence)
+    after = tau_loss(torch.tensor(adapted.phi, dtype=torch.float64), evidence, prior)
+    assert float(after) <= float(tau_loss(start, evidence, prior)) + 1e-9
+    assert all(math.isfinite(x) and x > 0 for x in adapted.sd)
+
+
+def test_u_moves_the_reaction_time_toward_what_the_answers_show_and_further_with_more_of_them():
+    prior = DriverPrior.population((math.log(1.2), 0.4), (2.0, 0.5))
+
+    def answers(delay: float, n: int) -> Evidence:
+        delays = torch.arange(0.3, 9.0, 0.1, dtype=torch.float64)
+        probs = torch.zeros(len(delays), dtype=torch.float64)
+        probs[int(torch.argmin((delays - delay).abs()))] = 1.0
+        return Evidence([(delays, probs, 0.0)] * n)
+
+    assert adapt_phi(prior, answers(3.0, 2)).reaction_time > prior.reaction_time
+    assert adapt_phi(prior, answers(3.0, 8)).reaction_time > adapt_phi(prior, answers(3.0, 2)).reaction_time
+    assert adapt_phi(prior, answers(0.6, 8)).reaction_time < prior.reaction_time
+    assert adapt_phi(prior, answers(3.0, 8)).sd[0] < adapt_phi(prior, answers(3.0, 2)).sd[0]  # the estimate narrows
+
+
+def test_ftml_moves_the_meta_centre_toward_the_drivers_seen_and_scores_u_not_the_centre():
+    prior = DriverPrior.population((0.0, 0.3), (2.0, 0.5))
+    delays = torch.arange(0.3, 9.0, 0.1, dtype=torch.float64)
+    probs = torch.zeros(len(delays), dtype=torch.float64)
+    probs[27] = 1.0  # every answer at 3 s
+    slow = Evidence([(delays, probs, 0.0)] * 3)
+    meta = meta_train(prior, [(slow, slow)] * 4, steps=40)
+    assert meta.mean[0] > prior.mean[0] + 0.3
+    # the meta model is judged after U: it must adapt a slow driver's tau to the slow answers at least as well as P
+    before = float(tau_loss(torch.tensor(adapt_phi(prior, slow).phi, dtype=torch.float64), slow, prior))
+    after = float(tau_loss(torch.tensor(adapt_phi(meta, slow).phi, dtype=torch.float64), slow, meta))
+    assert after < before
+
+
+# ----- on simulated drives -------------------------------------------------------------------------------------
+SLOW = (DriverProfile(reaction_time=2.4, decision_time=2.0), Context(visual="foggy"))
+QUICK = (DriverProfile(reaction_time=0.6, decision_time=1.5), Context())
+
+
+@pytest.fixture(scope="module")
+def driver_state(tmp_path_factory):
+    """adapt_driver's offline fit on the belief tests' 24 development drivers of Town1 (population seed 9201)."""
+    offline = shared_value(tmp_path_factory, "belief_development_drives", lambda: labelled_drives(
+        "Town1", n=24, population_seed=9201, seed=0, config={"n_traffic": 2}))
+    detector, prior, swerve = fit_belief(offline, decision=True)
+    model = {"detector": detector.state_dict(), "prior": prior.state_dict(), "swerve": swerve.state_dict()}
+    return fit_driver(offline, model, noise=0.15, outlier=0.3)
+
+
+def _tau(driver, route: int, seed: int):
+    profile, context = driver
+    env = history_env("Town1", {"route": route, "user": profile, "context": context}, config={"n_traffic": 2},
+                      seed=seed)
+    return drive(env, explore_module())
+
+
+@pytest.mark.slow
+def test_a_slow_tau_gives_a_later_reaction_time_and_earlier_imagined_prompts_than_a_quick_one(driver_state):
+    state = DriverState(dict(driver_state))
+    tau_slow, tau_quick = _tau(SLOW, 1, 3), _tau(QUICK, 1, 3)
+    slow = state.read_tau("slow", "r0", tau_slow, ["adapt_driver"])["adapt_driver"]
+    quick = state.read_tau("quick", "r0", tau_quick, ["adapt_driver"])["adapt_driver"]
+    assert slow.belief.estimate.reaction_time > quick.belief.estimate.reaction_time + 0.8
+    # the planner on each adapted model, at the same approach states of the slow driver's drive
+    plans = {name: DriverPlanner(t.copy(), DRIVER_PLANNER).planner for name, t in (("slow", slow), ("quick", quick))}
+    earlier = {"slow": 0, "quick": 0}
+    roots = [tau_slow[t] for t in range(tau_slow.shape[0])]
+    for root in roots:
+        actions = {name: plan.decide(root)[0] for name, plan in plans.items()}
+        explore = int(root["explore_action"])
+        for name, action in actions.items():
+            if explore == 0 and action != 0:  # a prompt said before explore would say it
+                earlier[name] += 1
+    assert earlier["slow"] > earlier["quick"]
