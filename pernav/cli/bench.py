@@ -31,6 +31,7 @@ from pernav.env.navigation import NavigationEnv
 from pernav.env.policies import belief_policy, explore_policy
 from pernav.env.torchrl_env import explore_module
 from pernav.learners.belief import AnswerDetector, BeliefTracker, DecisionPrior, ReactionBelief
+from pernav.learners.driver import DriverBelief, DriverPlanner, DriverPrior, DriverTracker
 from pernav.learners.outcomes import SwerveDetector
 from pernav.learners.timing import N_FEATURES, TimingModel
 from pernav.model import DynamicsModel, ImaginedEnv, adapt, multistep_loss
@@ -42,6 +43,7 @@ from pernav.play.livebench import bench_live
 from pernav.play.loop import PlaySession
 from pernav.play.options import PlayOptions
 from pernav.study.config import preset
+from pernav.study.driver_rounds import DRIVER_PLANNER
 from pernav.trainer.collect import drive, history_env
 from pernav.world.cost import tracking_cost
 
@@ -517,13 +519,49 @@ def bench_belief(quick: bool = False) -> dict[str, Any]:
     }
 
 
+def bench_driver(quick: bool = False) -> dict[str, Any]:
+    """adapt_driver's prompt decision (:class:`~pernav.learners.driver.DriverPlanner`) inside a drive: per step, its
+    tracker's update on the step's frames and prompt, ``U`` on the drive so far where an answer arrived, and the
+    re-timing tree search on the hybrid model (16 s, both ways, 10 rows), against explore's decision on the same
+    states. The detectors are untrained and the meta model the population's (the cost does not depend on them)."""
+    decision = DecisionPrior(mean=2.4, sd=0.7, hit=0.4, false=0.05)
+    prior = DriverPrior.population((0.3, 0.4), (decision.mean, decision.sd), hit=decision.hit, false=decision.false)
+    policy = DriverPlanner(DriverTracker(AnswerDetector(), DriverBelief(prior), SwerveDetector()), DRIVER_PLANNER)
+    env = history_env("Town3", {"route": 1, "user": "user3"}, config={"n_traffic": 8}, seed=0, K=10)
+    td = env.reset()
+    decision_ms, searched_ms, explore_ms = [], [], []
+    explore = explore_module()
+    for _ in range(60 if quick else 150):
+        before = policy.planner.decisions
+        t0 = time.perf_counter()
+        td = policy(td)
+        (searched_ms if policy.planner.decisions > before else decision_ms).append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        explore(td.clone())
+        explore_ms.append(time.perf_counter() - t0)
+        td = env.step(td)
+        if bool(td["next", "done"]):
+            break
+        td = td["next"]
+    every = decision_ms + searched_ms
+    return {
+        "decision_ms_median": _median_ms(every),
+        "searched_decision_ms_median": _median_ms(searched_ms) if searched_ms else None,
+        "searches": len(searched_ms),
+        "decision_vs_explore_ratio": round(_median_ms(every) / max(_median_ms(explore_ms), 1e-9), 2),
+        "answers_read": len(policy.tracker.belief.evidence.answers),
+        "target": "decision_ms_median <= 15",
+    }
+
+
 BENCHMARKS = {"sim": bench_sim, "planner": bench_planner, "train": bench_train, "play": bench_play,
-              "timing": bench_timing, "belief": bench_belief}
+              "timing": bench_timing, "belief": bench_belief, "driver": bench_driver}
 
 
 def run_benchmarks(which: str = "all", quick: bool = False, screenshots: str | None = None,
                    live: bool = False) -> dict[str, dict[str, Any]]:
-    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``, ``belief``) or ``all``; returns
+    """Run one benchmark (``sim``, ``planner``, ``train``, ``play``, ``timing``, ``belief``, ``driver``) or ``all``;
+    returns
     {name: figures}.
     ``screenshots``: a folder for the play benchmark's picture of each view; ``live``: the play benchmark in a window
     paced to real time (:func:`bench_play`)."""

@@ -57,7 +57,7 @@ from pernav.world.constants import (
 __all__ = ["DriverImaginedEnv", "DriverParams", "imagine_drive"]
 
 HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in ``route_ahead``
-SUBSTEPS = 10  # the imagination's steps per one-second decision
+SUBSTEPS = 2  # the imagination's steps per one-second decision (0.5 s: a decision within its time budget)
 MIN_COMMIT = 4.0  # m: a driver commits no closer to the junction than this
 PROMPT_REACH = 160.0  # m: no prompt is said further than this before its junction (a "prepare" at the latest speeds)
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
