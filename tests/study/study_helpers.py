@@ -57,9 +57,10 @@ def shared_study(tmp_path_factory, name: str, cfg: Any = None, workers: int = 1)
 
 
 # the mini study: the smoke preset's first two rounds (offline, then one online round: a checkpoint to resume from
-# and an evaluation after it) with explore and the two model learners (sysid, adapt: their buffers, ensembles and
-# meta-learner state are what a resume must restore): about 20 s, against 2 minutes for the smoke study
-MINI_METHODS = ("explore", "sysid", "adapt")
+# and an evaluation after it) with explore, the two model learners (sysid, adapt: their buffers, ensembles and
+# meta-learner state are what a resume must restore) and adapt_driver (its meta model, evidence and estimates): about
+# 30 s, against 2 minutes for the smoke study
+MINI_METHODS = ("explore", "sysid", "adapt", "adapt_driver")
 MINI_ROUNDS = 2
 
 
