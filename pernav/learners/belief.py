@@ -54,7 +54,8 @@ from pernav.world.constants import PREPARES, SIDED, TURNS
 from pernav.world.drivers import REACTION_CV
 
 __all__ = ["ANSWERED", "ANSWER_SPAN", "N_FRAME_FEATURES", "Answer", "AnswerDetector", "BeliefTracker",
-           "DecisionPrior", "ReactionBelief", "answers_of", "frame_features", "frame_series", "late_probability"]
+           "DecisionPrior", "ReactionBelief", "answers_of", "detectors", "frame_features", "frame_series",
+           "late_probability"]
 
 #: the prompts whose answer the belief reads: "turn" and "prepare" (left, right)
 ANSWERED = SIDED
@@ -390,6 +391,18 @@ class ReactionBelief:
         return out
 
 
+def detectors(model: Mapping[str, Any]) -> tuple[AnswerDetector, SwerveDetector | None]:
+    """The answer detector and the swerve detector (``None`` where ``model["swerve"]`` is absent or ``None``) of a
+    study's fitted belief (``{"detector", "swerve", ...}``: state dicts)."""
+    detector = AnswerDetector()
+    detector.load_state_dict(model["detector"])
+    swerve = None
+    if model.get("swerve") is not None:
+        swerve = SwerveDetector()
+        swerve.load_state_dict(model["swerve"])
+    return detector, swerve
+
+
 def late_probability(log_r: torch.Tensor, room: torch.Tensor) -> torch.Tensor:
     """``[G, H]``: the probability that a prompt's delay (lognormal around ``exp(log_r)``, one prompt's draw) exceeds
     each ``room`` (s; at or below zero: certainly)."""
@@ -566,12 +579,7 @@ class BeliefTracker:
                    posterior: Mapping[str, Any] | None = None) -> BeliefTracker:
         """A tracker from a study's fitted belief (``{"detector", "prior", "swerve"}``: state dicts; ``swerve`` may be
         ``None`` or absent), starting from ``posterior`` (a :class:`ReactionBelief` state dict) or the prior."""
-        detector = AnswerDetector()
-        detector.load_state_dict(model["detector"])
-        swerve = None
-        if model.get("swerve") is not None:
-            swerve = SwerveDetector()
-            swerve.load_state_dict(model["swerve"])
+        detector, swerve = detectors(model)
         belief = ReactionBelief.from_state_dict(model["prior"] if posterior is None else posterior)
         return cls(detector, belief, guard=guard, swerve=swerve)
 

@@ -23,9 +23,8 @@ from typing import Any
 import torch
 
 from pernav.learners.answers import LabelledDrive
-from pernav.learners.belief import AnswerDetector
+from pernav.learners.belief import detectors
 from pernav.learners.driver import DriverBelief, DriverPrior, DriverTracker, Estimate, Evidence, meta_train
-from pernav.learners.outcomes import SwerveDetector
 
 __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_driver"]
 
@@ -62,7 +61,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
     p0 = DriverPrior((float(log_r.mean()), float(D.mean())), (float(log_r.std()), float(D.std())),
                      sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
                      false=float(decision["false"]))
-    detector, swerve = _detectors(belief_model)
+    detector, swerve = detectors(belief_model)
     pairs = []
     for d in drives:
         belief = DriverBelief(p0)
@@ -76,16 +75,6 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
     meta = meta_train(p0, pairs)
     return {"detector": belief_model["detector"], "swerve": belief_model["swerve"], "prior0": p0.to_dict(),
             "prior": meta.to_dict(), "offline_pairs": [(a.state(), b.state()) for a, b in pairs]}
-
-
-def _detectors(model: dict[str, Any]) -> tuple[AnswerDetector, SwerveDetector | None]:
-    detector = AnswerDetector()
-    detector.load_state_dict(model["detector"])
-    swerve = None
-    if model.get("swerve") is not None:
-        swerve = SwerveDetector()
-        swerve.load_state_dict(model["swerve"])
-    return detector, swerve
 
 
 def _cruise(trajectory: Any) -> float:
@@ -102,7 +91,7 @@ class DriverState:
         data.setdefault("online_pairs", [])
         data.setdefault("estimates", {})
         data.setdefault("rounds", {})
-        self.detector, self.swerve = _detectors(data)
+        self.detector, self.swerve = detectors(data)
 
     def to_dict(self) -> dict[str, Any]:
         return self.data

@@ -280,8 +280,8 @@ class FinishedStudy:
             raise StudyError(str(exc)) from None
         return BeliefTracker.from_model(model, guard=bool(self.belief_options["guard"]))
 
-    def timing_model(self, town: str) -> TimingModel:
-        """The timing learner of ``town``, as fitted offline."""
+    def _run_state(self, town: str, field: str, learner: str) -> Any:
+        """The field ``field`` of ``town``'s last checkpoint (a :class:`StudyError` where ``learner`` did not run)."""
         self.check_town(town)
         try:
             state = load_checkpoint(self.folder / "checkpoints" / town, {})
@@ -289,22 +289,17 @@ class FinishedStudy:
             raise StudyError(f"cannot read the study's {town} checkpoint: {' '.join(str(exc).split())}") from None
         if state is None:
             raise StudyError(f"no {town} checkpoint in {str(self.folder)!r} (run the study first)")
-        if state.timing_model is None:
-            raise StudyError(f"the study in {str(self.folder)!r} did not run the timing learner (add it to its methods)")
-        return TimingModel().load_state_dict(state.timing_model)
+        if getattr(state, field) is None:
+            raise StudyError(f"the study in {str(self.folder)!r} did not run {learner} (add it to its methods)")
+        return getattr(state, field)
+
+    def timing_model(self, town: str) -> TimingModel:
+        """The timing learner of ``town``, as fitted offline."""
+        return TimingModel().load_state_dict(self._run_state(town, "timing_model", "the timing learner"))
 
     def driver_state(self, town: str) -> DriverState:
         """adapt_driver's state in ``town`` at the study's end: its meta model, detectors and estimates."""
-        self.check_town(town)
-        try:
-            state = load_checkpoint(self.folder / "checkpoints" / town, {})
-        except _UNREADABLE as exc:
-            raise StudyError(f"cannot read the study's {town} checkpoint: {' '.join(str(exc).split())}") from None
-        if state is None:
-            raise StudyError(f"no {town} checkpoint in {str(self.folder)!r} (run the study first)")
-        if state.driver is None:
-            raise StudyError(f"the study in {str(self.folder)!r} did not run adapt_driver (add it to its methods)")
-        return DriverState(state.driver)
+        return DriverState(self._run_state(town, "driver", "adapt_driver"))
 
     def policy(self, learner: str, town: str, tau: TensorDictBase | Sequence[TensorDictBase] | None = None,
                seed: int = 0) -> tuple[StudyPolicy | RetimedPolicy, dict[str, Any]]:
