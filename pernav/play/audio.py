@@ -74,8 +74,9 @@ def _quiet_stderr() -> Iterator[None]:
         os.close(null)
 
 
-def speech_file(instruction: int, playback: str = "normal") -> Path:
-    """The WAV file of an instruction (1-6) at a playback speed (``slower``, ``normal``, ``faster``).
+def speech_file(instruction: int, playback: str = "normal", voice: str | os.PathLike[str] | None = None) -> Path:
+    """The WAV file of an instruction (1-6) at a playback speed (``slower``, ``normal``, ``faster``); ``voice``: a
+    folder of such files (the same names) instead of the built-in voice.
 
     >>> speech_file(1).name
     '1_normal.wav'
@@ -83,7 +84,17 @@ def speech_file(instruction: int, playback: str = "normal") -> Path:
     Traceback (most recent call last):
     ValueError: instruction 0 has no speech; allowed: 1-6 (0, 'no instruction', is silence: no file)
     """
-    return SPEECH_DIR / f"{_instruction(instruction)}_{_playback(playback)}.wav"
+    return Path(voice or SPEECH_DIR) / f"{_instruction(instruction)}_{_playback(playback)}.wav"
+
+
+def voice_missing(voice: str | os.PathLike[str]) -> list[str]:
+    """The WAV files a voice folder lacks (every instruction 1-6 at every playback speed; ``[]``: complete).
+
+    >>> voice_missing(SPEECH_DIR)
+    []
+    """
+    return [p.name for p in (speech_file(i, pb, voice) for i in range(1, len(INSTRUCTIONS)) for pb in PLAYBACK)
+            if not p.is_file()]
 
 
 def wav_duration(path: str | os.PathLike[str]) -> float:
@@ -112,6 +123,8 @@ class Speaker:
 
     def __init__(self, enabled: bool = True, *, require: bool = False) -> None:
         self.enabled = enabled
+        self.volume = 1.0  # 0..1: the voice's volume (a lab's session file sets it)
+        self.voice: Path | None = None  # a folder of the prompts' WAVs (None: the built-in voice)
         self.reason = "sound disabled"
         self._channel: Any = None  # pygame.mixer.Channel once a device is open
         self._sounds: dict[Path, Any] = {}
@@ -166,13 +179,14 @@ class Speaker:
         instruction, playback = _instruction(instruction, allow_silence=True), _playback(playback)
         if instruction == Instruction.NONE or self._channel is None:
             return False
-        path = speech_file(instruction, playback)
+        path = speech_file(instruction, playback, self.voice)
         try:
             sound = self._sounds.get(path)
             if sound is None:
                 import pygame  # lazy: importing this module must not load pygame
 
                 sound = self._sounds[path] = pygame.mixer.Sound(str(path))
+            self._channel.set_volume(float(self.volume))
             self._channel.play(sound)
             return True
         except Exception as exc:  # a missing file, a device gone mid-run: this prompt stays text only

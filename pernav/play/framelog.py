@@ -12,7 +12,9 @@ Columns (units in brackets):
 
 - ``row``: ``frame`` (one per world frame, 10 per simulated second), ``prompt`` (one per decision step),
   ``drive`` (one per drive, last), ``answer`` (one per questionnaire answer).
-- identity, on every row: ``session``, ``participant``, ``block``, ``drive`` (the drive's number in the session),
+- identity, on every row: ``session``, ``participant``, ``block``, ``position`` (the block's place in the
+  participant's order: 1, 2, ...; 0 for the practice drive and what comes before the first block), ``drive`` (the
+  drive's number in the session),
   ``attempt`` (1, or 2, 3, ... for a drive driven again after it was stopped), ``practice`` (1/0), and the
   condition: ``town``, ``route``, ``vehicle``, ``visual`` (the weather: normal, rgb, foggy), ``camera``,
   ``equipment``, ``policy`` and ``user`` (who the oracle times its prompts for) (what the caller's ``meta`` gives;
@@ -29,7 +31,9 @@ Columns (units in brackets):
   navigation noticed them in), ``prompt`` (the frame a prompt began)).
 - prompt: ``step``, ``sim_time`` (simulated s of the decision), ``instruction`` (the chosen instruction's name,
   "no instruction" included), ``playback`` (slower, normal, faster), ``played`` (1/0: the env's prompt rule let it
-  play), ``audio_start`` and ``audio_end`` (simulated s, where played), ``spoken`` (1/0: the speaker played it).
+  play), ``audio_start`` and ``audio_end`` (simulated s, where played), ``spoken`` (1/0: the speaker played it),
+  ``reaction_s`` (s after the prompt's audio end at which the car's frames show it taking effect, as a study's
+  belief learner reads a "turn" or "prepare" prompt's answer; empty where not read: :mod:`pernav.play.labdata`).
 - drive: ``completed`` (1/0), ``time`` (simulated s), ``tracking_cost``, ``vehicle_collisions``, ``edge_strikes``,
   ``missed_turns``, ``reroutes`` (counts over the whole steps driven), ``interrupted`` (1/0), ``stopped_by``
   (``person``, ``ctrl-c`` or empty), ``frame_median_ms`` and ``frame_p95_ms`` (compute time of a world frame, ms),
@@ -64,13 +68,14 @@ from pernav.world.controls import ControlInput
 if TYPE_CHECKING:  # a drive's log and rows need no torch (a lab's session file is checked without it)
     from tensordict import TensorDictBase
 
-__all__ = ["COLUMNS", "IDENTITY", "DriveLog", "InputTap", "PlayResult", "answer_rows", "append_csv", "drive_rows"]
+__all__ = ["COLUMNS", "IDENTITY", "DriveLog", "InputTap", "PlayResult", "answer_rows", "append_csv", "csv_text",
+           "drive_rows"]
 
-IDENTITY = ("session", "participant", "block", "drive", "attempt", "practice",
+IDENTITY = ("session", "participant", "block", "position", "drive", "attempt", "practice",
             "town", "route", "vehicle", "visual", "camera", "equipment", "policy", "user")
 FRAME_COLUMNS = ("frame", "step", "wall_time", "wall_s", "sim_time", "keys", "steer_input", "throttle_input",
                  "brake_input", "wheel", "throttle_pedal", "brake_pedal", "x", "y", "heading", *FRAME_KEYS, "events")
-PROMPT_COLUMNS = ("instruction", "playback", "played", "audio_start", "audio_end", "spoken")
+PROMPT_COLUMNS = ("instruction", "playback", "played", "audio_start", "audio_end", "spoken", "reaction_s")
 DRIVE_COLUMNS = ("completed", "time", "tracking_cost", "vehicle_collisions", "edge_strikes", "missed_turns",
                  "reroutes", "interrupted", "stopped_by", "frame_median_ms", "frame_p95_ms", "wall_start", "wall_end")
 ANSWER_COLUMNS = ("question", "answer")
@@ -294,6 +299,21 @@ def _cell(value: Any) -> Any:
     return value
 
 
+def csv_text(rows: Iterable[Mapping[str, Any]], columns: Iterable[str], header: bool = False) -> str:
+    """``rows`` as CSV lines of ``columns`` (missing fields empty, booleans 1/0), the header line first if asked.
+
+    >>> csv_text([{"a": True, "b": None}], ("a", "b"), header=True)
+    'a,b\\n1,\\n'
+    """
+    columns = tuple(columns)
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    if header:
+        writer.writerow(columns)
+    writer.writerows([_cell(row.get(c)) for c in columns] for row in rows)
+    return text.getvalue()
+
+
 def append_csv(path: str | os.PathLike[str], rows: Iterable[Mapping[str, Any]]) -> Path:
     """Append ``rows`` to the session table at ``path`` (:data:`COLUMNS` in order, missing fields empty): the
     header only when the file is new; existing lines are never rewritten. A field that is not a column, or an
@@ -318,13 +338,8 @@ def append_csv(path: str | os.PathLike[str], rows: Iterable[Mapping[str, Any]]) 
             header = next(csv.reader(f), [])
         if tuple(header) != COLUMNS:
             raise ValueError(f"{path} has other columns than this session table's: not appended")
-    text = io.StringIO()
-    writer = csv.writer(text, lineterminator="\n")
-    if new:
-        writer.writerow(COLUMNS)
-    writer.writerows([_cell(row.get(c)) for c in COLUMNS] for row in rows)
     with path.open("a", newline="") as f:  # one write, then to disk: a lab's data survives a crash after it
-        f.write(text.getvalue())
+        f.write(csv_text(rows, COLUMNS, header=new))
         f.flush()
         os.fsync(f.fileno())
     return path

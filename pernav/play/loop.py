@@ -150,6 +150,7 @@ class PlaySession:
         self.ready = (options.window and self.realtime) if options.ready is None else bool(options.ready)
         self.countdown, self.title, self.notice = float(options.countdown), options.title, options.notice
         self.hide_cost, self.calibrate = bool(options.hide_cost), bool(options.calibrate)
+        self.counters = bool(options.counters)  # the live counters on the HUD and the result screen
         self.pauses, self.paused_s = 0, 0.0  # pauses taken, and their wall-clock seconds (the world stood still)
         self.screen: str | None = None  # the screen shown now: calibrate, ready, countdown, pause, confirm, result
         self.calibration: dict[str, bool] | None = None  # per control, whether the calibration saw it move
@@ -466,7 +467,7 @@ class PlaySession:
         """The drive's result until the person's go."""
         self.screen = "result"
         getattr(self.controls, "take_go", lambda: False)()
-        lines = [*result_lines(metrics, self.hide_cost), "Press Enter to continue"]
+        lines = [*result_lines(metrics, self.hide_cost, self.counters), "Press Enter to continue"]
         try:
             while True:
                 self._panel(lines)

@@ -45,8 +45,8 @@ class PlayOptions:
     The world's: ``seed``, ``n_traffic``, ``playback`` (the speed the rule-based policies speak at; another than
     ``normal`` makes the env's action space each instruction at each speed), ``K`` and ``env_config``. The
     picture's: ``window``, ``draw``, ``realtime``, ``fps``, ``size``, ``screenshot``, ``screenshot_at``. A person's
-    screens around the drive: ``ready``, ``countdown``, ``title``, ``notice``, ``hide_cost``, ``calibrate``,
-    ``progress``.
+    screens around the drive: ``ready``, ``countdown``, ``title``, ``notice``, ``hide_cost``, ``counters``,
+    ``calibrate``, ``progress``.
     """
 
     seed: int = 0
@@ -86,6 +86,9 @@ class PlayOptions:
     """A line on the ready screen (e.g. "no sound on this computer")."""
     hide_cost: bool = False
     """Keep the tracking cost off the screen."""
+    counters: bool = True
+    """Show the live counters (collisions, kerb strikes, missed turns, re-routes) during the drive and on its result
+    screen; False: the drive's time and speed only."""
     calibrate: bool = False
     """A wheel's calibration screen first (controls with axes)."""
     progress: str | None = None

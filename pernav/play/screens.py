@@ -108,17 +108,19 @@ def show_axes(view: Any, values: Mapping[str, float], moved: Mapping[str, bool],
     view.present()
 
 
-def result_lines(metrics: Mapping[str, Any], hide_cost: bool = False) -> list[str]:
-    """The end screen's lines for a drive's metrics (the cost left out with ``hide_cost``).
+def result_lines(metrics: Mapping[str, Any], hide_cost: bool = False, counters: bool = True) -> list[str]:
+    """The end screen's lines for a drive's metrics (the cost left out with ``hide_cost``, the counts of collisions,
+    kerb strikes and missed turns without ``counters``).
 
     >>> result_lines({"completed": True, "time": 129.4, "tracking_cost": 112.0, "vehicle_collisions": 0,
     ...               "edge_strikes": 2, "missed_turns": 1})
     ['Arrived after 129 s', 'vehicle collisions 0   kerb strikes 2   missed turns 1', 'tracking cost 112']
     """
     state = "Arrived" if metrics.get("completed") else "Not arrived"
-    lines = [f"{state} after {metrics.get('time', 0):.0f} s",
-             f"vehicle collisions {metrics.get('vehicle_collisions', 0)}   kerb strikes "
-             f"{metrics.get('edge_strikes', 0)}   missed turns {metrics.get('missed_turns', 0)}"]
+    lines = [f"{state} after {metrics.get('time', 0):.0f} s"]
+    if counters:
+        lines.append(f"vehicle collisions {metrics.get('vehicle_collisions', 0)}   kerb strikes "
+                     f"{metrics.get('edge_strikes', 0)}   missed turns {metrics.get('missed_turns', 0)}")
     if not hide_cost:
         lines.append(f"tracking cost {metrics.get('tracking_cost', 0):.0f}")
     return lines

@@ -205,8 +205,8 @@ class PlayView:
 def hud_texts(session: Any) -> dict[str, str]:
     """The texts the HUD draws for ``session``: ``prompt`` (the instruction and its distance, while it holds),
     ``drive`` (the session's counter, e.g. "Drive 2 of 6": its ``progress``, else its ``title``), ``status`` (time,
-    speed, cost unless ``hide_cost``, events) and ``hint`` (the keys; a stop line near). A key is left out when
-    there is nothing to show."""
+    speed, cost unless ``hide_cost``, the events' counts unless ``counters`` is False) and ``hint`` (the keys; a stop
+    line near). A key is left out when there is nothing to show."""
     nav = session.nav
     ev, ego = nav.world.events, nav.world.ego
     out: dict[str, str] = {}
@@ -217,9 +217,9 @@ def hud_texts(session: Any) -> dict[str, str]:
     if drive:
         out["drive"] = drive
     cost = "" if getattr(session, "hide_cost", False) else f"cost {nav.tracking_cost:6.0f}   "
-    out["status"] = (f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}"
-                     f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
-                     f"re-routes {nav.reroutes}")
+    counts = (f"collisions {ev.vehicle_collisions}   kerb {ev.edge_strikes}   missed {nav.missed_turns}   "
+              f"re-routes {nav.reroutes}") if getattr(session, "counters", True) else ""
+    out["status"] = f"t {nav.world.time:5.1f} s   {ego.speed * 3.6:4.0f} km/h   {cost}{counts}".rstrip()
     hint = "arrows/WASD: steer, throttle, brake   P: pause   Esc: stop (asks first)"
     if ego.stop_ahead is not None and ego.stop_ahead < 30.0:
         hint = f"give way: stop line in {ego.stop_ahead:3.0f} m   " + hint
