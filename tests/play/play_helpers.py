@@ -85,3 +85,18 @@ def watch_session_window(monkeypatch) -> dict[str, list]:
     monkeypatch.setattr(screens, "show_panel",
                         lambda view, lines, **kw: seen["panels"].append(list(lines)) or panel(view, lines, **kw))
     return seen
+
+
+def lab_study(tmp_path_factory) -> Path:
+    """A finished study whose learners a lab session's blocks name: explore, adapt and belief (one offline and one
+    online round; built once per test session)."""
+
+    def build(out: Path) -> None:
+        from pernav.study import preset, run_study
+
+        cfg = preset("smoke")
+        cfg.methods, cfg.schedule, cfg.calibration = ["explore", "adapt", "belief"], cfg.schedule[:2], 0
+        cfg.train.warm_updates = 10
+        run_study(cfg, out, report=False)
+
+    return shared_folder(tmp_path_factory, "play_lab_study", build)
