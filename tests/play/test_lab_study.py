@@ -73,6 +73,17 @@ def study(tmp_path_factory):
     return lab_study(tmp_path_factory)
 
 
+@pytest.fixture
+def named(tmp_path):
+    """What a session file's checks read of a finished study (its settings only): explore, adapt and belief in
+    Town1, without building one."""
+    folder = tmp_path / "named_study"
+    folder.mkdir()
+    (folder / "study.json").write_text(json.dumps({"towns": ["Town1"], "methods": ["explore", "adapt", "belief"]}))
+    (folder / "results.json").write_text("{}")
+    return folder
+
+
 @pytest.fixture(scope="module")
 def lab(study, tmp_path_factory):
     """Three participants' whole sessions, headless (the scripted bot drives; scripted answers)."""
@@ -242,8 +253,12 @@ def _session(capsys, *args: str) -> tuple[int, str]:
 
 
 @pytest.fixture(scope="module")
-def finished(lab):
-    base, path, _ = lab
+def finished(tmp_path_factory):
+    """S01's finished session of a one-drive file without a study (what the refusals copy and mix up)."""
+    base = tmp_path_factory.mktemp("small")
+    path = _write(base, {"participants": PEOPLE, "traffic": 0, "countdown": 0,
+                         "blocks": [{"name": "baseline", "routes": [0]}]})
+    assert LabSession(load_plan(path), "S01", base / "out", announce=lambda s: None).run().finished
     return base / "out", path
 
 
@@ -349,16 +364,16 @@ def test_a_bad_field_is_refused_by_name(change, message, tmp_path):
         parse_plan(plan, base=tmp_path)
 
 
-def test_a_learner_the_study_did_not_run_is_refused_by_name(study):
-    plan = {"participants": ["P1"], "study": str(study), "blocks": [{"name": "x", "routes": [0], "policy": "timing"}]}
+def test_a_learner_the_study_did_not_run_is_refused_by_name(named):
+    plan = {"participants": ["P1"], "study": str(named), "blocks": [{"name": "x", "routes": [0], "policy": "timing"}]}
     with pytest.raises(SessionFileError, match="unknown policy 'timing'; choose one of explore, oracle or a learner "
                                                "of the study \\(adapt, belief\\)"):
         parse_plan(plan)
 
 
-def test_headless_without_answers_on_stdin_is_refused_before_anything_is_written(study, tmp_path, capsys,
+def test_headless_without_answers_on_stdin_is_refused_before_anything_is_written(named, tmp_path, capsys,
                                                                                   monkeypatch):
-    path = _write(tmp_path, _plan(study))
+    path = _write(tmp_path, _plan(named))
     monkeypatch.setattr(sys, "stdin", io.StringIO("4\n"))
     code, err = _session(capsys, str(path), "--participant", "S01", "--out", str(tmp_path / "o"), "--headless",
                          "--no-audio")
@@ -366,12 +381,12 @@ def test_headless_without_answers_on_stdin_is_refused_before_anything_is_written
     assert not (tmp_path / "o").exists()
 
 
-def test_check_warns_when_the_participants_leave_the_square_incomplete(study, tmp_path, capsys):
-    path = _write(tmp_path, _plan(study))
+def test_check_warns_when_the_participants_leave_the_square_incomplete(named, tmp_path, capsys):
+    path = _write(tmp_path, _plan(named))
     assert main(["session", str(path), "--check"]) == 0
     err = capsys.readouterr().err
     assert "3 participants use 3 of the 6 orders" in err and "multiple of 6" in err
-    plan = parse_plan({**_plan(study), "participants": [f"P{k}" for k in range(6)]})
+    plan = parse_plan({**_plan(named), "participants": [f"P{k}" for k in range(6)]})
     assert square_warning(plan) is None
 
 
