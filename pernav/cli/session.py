@@ -13,7 +13,8 @@ import sys
 from typing import Any
 
 from pernav.cli.common import INTERRUPTED, PLAY_INPUTS, UsageError, open_speaker, person_controls
-from pernav.play.lab import LabSession, SessionPlan, drive_list, load_plan, square_warning
+from pernav.play.lab import LabSession
+from pernav.play.labplan import SessionPlan, drive_list, load_plan, square_warning
 from pernav.play.sessions import check_writable
 
 __all__ = ["add_parser", "run", "stdin_answers"]

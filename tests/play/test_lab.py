@@ -16,7 +16,8 @@ import pandas as pd
 import pytest
 
 from pernav.cli import main
-from pernav.play.lab import LabSession, SessionFileError, block_order, drive_list, load_plan, parse_plan, williams_square
+from pernav.play.lab import LabSession
+from pernav.play.labplan import SessionFileError, block_order, drive_list, load_plan, parse_plan, williams_square
 
 ROOT = Path(__file__).resolve().parents[2]
 PLAN = {"name": "t", "participants": ["P1", "P2"], "traffic": 0, "countdown": 0, "seed": 3,
@@ -125,7 +126,8 @@ def test_an_existing_session_is_not_overwritten_without_resume(tmp_path):
 
 _RUN = """
 import sys
-from pernav.play.lab import LabSession, load_plan
+from pernav.play.lab import LabSession
+from pernav.play.labplan import load_plan
 LabSession(load_plan(sys.argv[1]), "P1", sys.argv[2], answer=lambda q, b: 4, resume=len(sys.argv) > 3).run()
 """
 

@@ -27,8 +27,9 @@ from play_helpers import lab_study
 from pernav.cli import main
 from pernav.play import ssq
 from pernav.play.audio import SPEECH_DIR, Speaker
-from pernav.play.lab import LabOptions, LabSession, SessionFileError, load_plan, parse_plan, square_warning
+from pernav.play.lab import LabOptions, LabSession
 from pernav.play.labdata import ANSWER_TABLE, DRIVE_TABLE
+from pernav.play.labplan import SessionFileError, load_plan, parse_plan, square_warning
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
@@ -200,7 +201,8 @@ def test_the_docs_example_analysis_runs_on_a_generated_session(lab, monkeypatch,
 
 _RUN = """
 import inspect, sys
-from pernav.play.lab import LabSession, load_plan
+from pernav.play.lab import LabSession
+from pernav.play.labplan import load_plan
 exec(sys.argv[3])
 LabSession(load_plan(sys.argv[1]), "S01", sys.argv[2], answer=_answer, announce=lambda s: None).run()
 """
