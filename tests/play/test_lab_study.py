@@ -313,7 +313,6 @@ def test_a_folder_with_files_the_session_did_not_write_is_not_resumed(finished, 
     assert code == 2 and err.count("\n") == 1 and extra in err and _bytes(copy) == before
 
 
-@pytest.mark.slow
 def test_files_saved_but_not_committed_are_kept_under_an_attempt_name(finished, tmp_path):
     """As a kill after the last drive's files were saved, before its record: the files are renamed, not replaced;
     a progress line cut short is ended, not cut."""
@@ -321,7 +320,7 @@ def test_files_saved_but_not_committed_are_kept_under_an_attempt_name(finished, 
     folder = tmp_path / "out" / "S01"
     shutil.copytree(out / "S01", folder)
     lines = (folder / "progress.jsonl").read_text().splitlines(keepends=True)
-    last = next(k for k, line in enumerate(lines) if json.loads(line)["item"] == "drive:3")
+    last = max(k for k, line in enumerate(lines) if json.loads(line)["item"].startswith("drive:"))
     cut: dict[str, int] = {}  # the tables as they were before the drive's record (its rows come after it)
     for line in lines[last:]:
         for table, span in json.loads(line)["appends"].items():
@@ -332,7 +331,7 @@ def test_files_saved_but_not_committed_are_kept_under_an_attempt_name(finished, 
     (folder / "summary.json").unlink()
     events = folder / "events.jsonl"
     events.write_text(events.read_text().rsplit('{"event": "end"', 1)[0])  # the run never ended
-    saved = {p.name: p.read_bytes() for p in (folder / "drives").glob("03-*")}
+    saved = {p.name: p.read_bytes() for p in (folder / "drives").glob("01-*")}
     assert len(saved) == 3
     result = LabSession(load_plan(path), "S01", tmp_path / "out", answer=_answer, resume=True,
                         announce=lambda s: None).run()
@@ -344,7 +343,7 @@ def test_files_saved_but_not_committed_are_kept_under_an_attempt_name(finished, 
     kept = [json.loads(x) for x in events.read_text().splitlines() if '"kept"' in x]
     assert len(kept) == 4 and [json.loads(x)["event"] for x in events.read_text().splitlines()].count("killed") == 1
     assert (folder / "progress.jsonl").read_text().startswith("".join(lines[:last]) + lines[last][:40] + "\n")
-    assert pd.read_csv(folder / "drives.csv")["drive"].tolist() == [1, 2, 3]
+    assert pd.read_csv(folder / "drives.csv")["drive"].tolist() == [1]
 
 
 # ----- refusals of a bad file or missing answers ----------------------------------------------------------------
