@@ -244,15 +244,16 @@ def test_a_retimed_tau_is_re_timed_and_leaves_the_evaluation_alone(tmp_path_fact
     from pernav.trainer.buffers import RoundBuffers
 
     def run(tau: str) -> tuple[dict, RoundBuffers]:
-        # the mini study (Town1, the offline round and an online one; explore, sysid, adapt): with the preset's
-        # explore tau it is the shared one that tests/study/test_reliability.py compares against
+        # the mini study (Town1, the offline round and an online one): with the preset's explore tau it is the shared
+        # one that tests/study/test_reliability.py compares against; re-timed, only what this test reads runs (explore's
+        # evaluation, sysid's buffers): a method's episodes do not depend on which other methods run
         cfg = mini_config()
         assert cfg.towns == ["Town1"] and len(cfg.schedule) == 2 and {"explore", "sysid"} <= set(cfg.methods)
         if tau == "explore":
             assert cfg.tau_policy == "explore"
             out = mini_study(tmp_path_factory)
         else:
-            cfg.tau_policy, out = tau, tmp_path / tau
+            cfg.tau_policy, cfg.methods, out = tau, ["explore", "sysid"], tmp_path / tau
             run_study(cfg, out)
         last = sorted((out / "checkpoints" / "Town1").glob("entry_*"))[-1]
         return json.loads((out / "results.json").read_text()), RoundBuffers.load(last / "buffers_sysid")
