@@ -52,7 +52,8 @@ MIXED = [
     {"label": "Online 0", "phase": "online", "driver": "user1", "vehicle": "cybertruck"},
     # the second drive named first: it is the round's tau; the glob adds the other one (and not the first twice)
     {"label": "Person", "phase": "online", "drives": ["drives/alice_1.pt", "drives/alice_*.pt"]},
-    {"label": "Online 8", "phase": "online", "driver": "user3"},
+    # no simulated round after "Person": the kill-and-resume test's resumed rounds ("Online 0", "Person") already
+    # cover a simulated round after a person's, and each round is some 25 s of the test suite
 ]
 
 
@@ -87,12 +88,11 @@ def test_a_study_learns_from_recorded_and_simulated_drives(mixed_study, drives, 
     results = json.loads((out / "results.json").read_text())
     iterations = {it["label"]: it for it in results["iterations"]}
     assert set(iterations["Online 0"]["towns"]["Town1"]) == set(METHODS)  # simulated rounds: evaluated
-    assert set(iterations["Online 8"]["towns"]["Town1"]) == set(METHODS)
     for label in ("Person warm-up", "Person"):  # recorded rounds: data only, no episodes
         assert iterations[label]["towns"]["Town1"] == {} and iterations[label]["user"]["name"] == "recorded"
     regret = results["regret"]["Town1"]
     assert "Person" in regret["labels"] and regret["adaptation"]["Person"]["adapted"] > 0  # held out: alice_0
-    assert results["summary"]["Town1"]["adapt"]["rounds"] == 2
+    assert results["summary"]["Town1"]["adapt"]["rounds"] == 1  # the simulated online rounds
     assert (out / "report.md").exists() and (out / "figures" / "Town1_cost.png").exists()
 
     last = sorted((out / "checkpoints" / "Town1").glob("entry_*"))[-1]
