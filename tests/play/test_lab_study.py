@@ -22,6 +22,7 @@ import pandas as pd
 import pytest
 import torch
 import yaml
+from navigation_helpers import shared_folder
 from play_helpers import lab_study
 
 from pernav.cli import main
@@ -87,15 +88,20 @@ def named(tmp_path):
 
 @pytest.fixture(scope="module")
 def lab(study, tmp_path_factory):
-    """Three participants' whole sessions, headless (the scripted bot drives; scripted answers)."""
-    base = tmp_path_factory.mktemp("lab")
-    path = _write(base, _plan(study))
-    plan = load_plan(path)
-    lines: list[str] = []
-    for participant in PEOPLE:
-        result = LabSession(plan, participant, base / "out", answer=_answer, announce=lines.append).run()
-        assert result.finished and not result.stopped
-    return base, path, lines
+    """Three participants' whole sessions, headless (the scripted bot drives; scripted answers), run once per test
+    session for both pytest workers (the tests only read them): a module fixture would run them again on each worker,
+    and again whenever the test order leaves this module and comes back."""
+
+    def build(base: Path) -> None:
+        plan = load_plan(_write(base, _plan(study)))
+        lines: list[str] = []
+        for participant in PEOPLE:
+            result = LabSession(plan, participant, base / "out", answer=_answer, announce=lines.append).run()
+            assert result.finished and not result.stopped
+        (base / "announced.json").write_text(json.dumps(lines))
+
+    base = shared_folder(tmp_path_factory, "lab_sessions", build)
+    return base, base / "session.yaml", json.loads((base / "announced.json").read_text())
 
 
 @pytest.mark.slow
