@@ -69,6 +69,7 @@ DRIVE_TABLE = [
     ("time", "float", "s", "simulated time driven"),
     ("tracking_cost", "float", "cost units", "the study's tracking cost summed over the drive's steps (lower: "
      "closer to the route at the planned speed)"),
+    ("collisions", "int", "count", "vehicle_collisions + edge_strikes (the study's collisions)"),
     ("vehicle_collisions", "int", "count", "collisions with other cars"),
     ("edge_strikes", "int", "count", "kerb strikes"),
     ("missed_turns", "int", "count", "junctions where the car left the route"),
@@ -174,6 +175,7 @@ def drive_table_row(record: Mapping[str, Any], reactions: Sequence[tuple[int, fl
         if kind == "int":
             row[name] = _int(record.get(name))
     turns = [r for i, r in reactions if i in TURNS]
+    row["collisions"] = row["vehicle_collisions"] + row["edge_strikes"]
     row.update(prompts=len(prompts), turn_prompts=sum(i in TURNS for i in prompts), reactions=len(reactions),
                reaction_mean_s=_mean([r for _, r in reactions]), reaction_turn_s=_mean(turns))
     return row

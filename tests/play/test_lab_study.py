@@ -116,6 +116,7 @@ def test_three_participants_drive_the_learners_as_counterbalanced_conditions(lab
         assert drives["block"].tolist() == orders[participant] and drives["position"].tolist() == [1, 2, 3]
         assert dict(zip(drives["block"], drives["policy"], strict=True)) == {"baseline": "explore", "bayes": "belief",
                                                                             "meta": "adapt"}
+        assert (drives["collisions"] == drives["vehicle_collisions"] + drives["edge_strikes"]).all()
         assert (drives["completed"] == 1).all() and drives["counters"].tolist() == [
             int(b != "bayes") for b in orders[participant]]
         saved = torch.load(folder / "belief.pt", weights_only=False)
@@ -198,7 +199,7 @@ def test_the_docs_example_analysis_runs_on_a_generated_session(lab, monkeypatch,
     exec(compile(_docs_analysis(), "docs/human.md[analysis]", "exec"), namespace)  # noqa: S102
     table = namespace["table"]
     assert list(table.index.names) == ["participant", "policy"] and len(table) == 9
-    assert list(table.columns) == ["tracking_cost", "vehicle_collisions", "missed_turns", "reaction_turn_s",
+    assert list(table.columns) == ["tracking_cost", "collisions", "missed_turns", "reaction_turn_s",
                                    "ssq_total"]
     assert table.loc[("S02", "belief"), "ssq_total"] == pytest.approx(2 * 3.74)
     assert table["tracking_cost"].notna().all()
