@@ -72,7 +72,8 @@ class BeliefSession(Session):
         if options.resume:
             raise PlayError("--resume goes with a model-based learner; a belief session's drives and belief.pt are "
                             "kept as they were driven: start a new session")
-        self.record_dir = check_session(self.town, self.routes, options.seed, options.record_dir, resume=False)
+        self.record_dir = check_session(self.town, self.routes, options.seed, options.record_dir, resume=False,
+                                        resumable=False)
         with study_errors():
             self.policy, _ = FinishedStudy.open(study_dir).policy("belief", self.town)
         self.study = str(study_dir)

@@ -248,11 +248,12 @@ def belief_markdown(summary: dict[str, Any]) -> str:
 
 
 # ----- the checks before the first drive ------------------------------------------------------------------------
-def check_session(town: str, routes: Sequence[int], seed: int, record_dir: str | Path | None, resume: bool
-                  ) -> Path | None:
+def check_session(town: str, routes: Sequence[int], seed: int, record_dir: str | Path | None, resume: bool,
+                  resumable: bool = True) -> Path | None:
     """The session's record folder (``None``: not recorded) once ``town``, ``routes`` (tau's, then at least one more),
     ``seed`` and the folder are valid: a folder holding another session is refused unless ``resume``, when it must
-    hold one. :class:`~pernav.play.options.PlayError` names the bad setting and what is allowed."""
+    hold one (the refusal suggests ``--resume`` only where the session can be ``resumable``).
+    :class:`~pernav.play.options.PlayError` names the bad setting and what is allowed."""
     if town not in TOWN_NAMES:
         raise PlayError(f"unknown town {town!r}; choose one of {', '.join(TOWN_NAMES)}")
     n_routes = len(get_town(town).routes)
@@ -271,8 +272,9 @@ def check_session(town: str, routes: Sequence[int], seed: int, record_dir: str |
             raise PlayError(f"record folder {str(folder)!r} exists and is not a folder")
         held = any((folder / name).exists() for name in SESSION_FILES)
         if held and not resume:
-            raise PlayError(f"record folder {str(folder)!r} already holds a personalization session; "
-                            "choose another, or --resume to continue it")
+            raise PlayError(f"record folder {str(folder)!r} already holds a personalization session; choose "
+                            + ("another, or --resume to continue it" if resumable else "another (this learner's "
+                               "sessions are not resumed)"))
         if resume and not (folder / "session.json").is_file():
             raise PlayError(f"--resume: record folder {str(folder)!r} holds no personalization session "
                             "to resume (no session.json)")

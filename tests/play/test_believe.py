@@ -148,3 +148,11 @@ def test_a_windowed_belief_session_keeps_one_window_and_ends_with_thanks(belief_
     assert [p[0] for p in panels].count(CLOSING) == 1  # reading the last drive: no drive follows
     assert panels[-1] == [FINISHED, "You drove all 2 drives.", "Press Enter to close"]
     assert not any("cost" in line for p in panels for line in p)
+
+
+def test_a_folder_holding_a_belief_session_is_refused_without_suggesting_resume(session, belief_study):
+    # a belief session is not resumed (its drives and belief.pt stay as driven): its refusal must not point to --resume
+    *_, record = session
+    with pytest.raises(PlayError, match="already holds a personalization session") as refused:
+        BeliefSession(belief_study, "Town1", [0, 1], options=SessionOptions(seed=0, record_dir=record, n_traffic=1))
+    assert "--resume" not in str(refused.value) and "not resumed" in str(refused.value)
