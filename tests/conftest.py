@@ -12,10 +12,12 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # The longest checks, two by two, in the order they start under `make test` (pytest -n 2 --dist load
 # --maxschedchunk 2 hands a worker the next two tests whenever it is down to its last one, so each pair runs on one
 # worker, one test after the other). A pair shares what its tests build: the shared smoke study (Town1 and Town2 on
-# a pool of two, tests/study/study_helpers.py) and the pool comparison's Town2 alone, the recorded-drives study and
-# its resume, the sweeps of tests/world/test_acceptance.py, the development drivers of tests/learners/test_belief.py
-# (module fixtures, built again on every worker that runs one of their tests). The smoke study is built first; the
-# mini study (Ray, SIGKILL) is built by the first of its checks, on the other worker; the checks that only read the
+# a pool of two, tests/study/study_helpers.py) and the pool comparison (against the mini study), the recorded-drives
+# study and its resume, the sweeps of tests/world/test_acceptance.py, the development drivers of
+# tests/learners/test_belief.py (module fixtures, built again on every worker that runs one of their tests). The smoke
+# study is built first; the mini study (the pool comparison, Ray, SIGKILL) is built by the first of its checks to
+# start (the pool comparison, once the smoke study is built, while the other worker runs the recorded-drives pair: no
+# worker waits on the other's study); the checks that only read the
 # smoke study (the timing learner's, then the rest) reach a worker only once two pairs have run, so no worker waits
 # on the other's study. Ids without parameters name every case of a parametrized test.
 PAIRS = (
