@@ -1,0 +1,82 @@
+"""Does the planner on the hybrid model, given a driver's *true* parameters, time the turn as best_shift does?
+
+adapt_driver's acceptance asks that the re-timing planner on the true driver parameters choose what ``best_shift``
+chooses on a constructed approach. The approach is the timing sweep's (Town1: straight through J11, right at J12,
+no traffic; ``pernav.env.sweep``), driven by four drivers (a slow and a quick profile, user3 in the truck in fog,
+user4 on the keyboard) with every shift of explore's rule (``SHIFTS``), explore itself, and the planner
+(``DRIVER_PLANNER``) on ``DriverParams`` read from the simulated driver (reaction and decision time, turn speed,
+braking and acceleration; cruise as the model's default), on the same seeds. Reading the profile is allowed here:
+this is a check of the model's structure, not a learner at round time.
+
+Reports per driver: each shift's mean tracking cost and its 95 % bootstrap CI, the best shift, the planner's mean
+"turn" lead minus explore's (s; a shift of k steps moves it by about k s) and the planner's cost.
+
+    .venv/bin/python docs/research/scripts/planner_vs_best_shift.py --seeds 10 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+
+from pernav.env.sweep import sweep_route
+from pernav.env.torchrl_env import explore_module
+from pernav.model.driver import DriverImaginedEnv, DriverParams
+from pernav.planner.factory import env_planning_config
+from pernav.planner.retiming import Departure, RetimingPlanner, ShiftedExplore
+from pernav.study.driver_rounds import DRIVER_PLANNER, SHIFTS
+from pernav.study.stats import bootstrap_ci
+from pernav.trainer.collect import drive, episode_metrics, history_env
+from pernav.world.drivers import Context, DriverProfile, named_user, resolve
+
+OPTIONS = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
+CONFIG = {"n_traffic": 0, **env_planning_config({"kind": "retime", **OPTIONS})}
+DRIVERS = {"slow": (DriverProfile(reaction_time=2.4, decision_time=2.0), Context(visual="foggy")),
+           "quick": (DriverProfile(reaction_time=0.6, decision_time=1.5), Context()),
+           "user3_truck_fog": (named_user("user3"), Context(vehicle="cybertruck", visual="foggy")),
+           "user4_keyboard": (named_user("user4"), Context(equipment="keyboard"))}
+
+
+def true_params(profile: DriverProfile, context: Context) -> DriverParams:
+    """The hybrid model's parameters as the simulated driver has them."""
+    d = resolve(profile, context)
+    return DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
+                        brake=d.comfort_decel, accel=d.comfort_accel)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    route, seeds, report = sweep_route(), range(args.seeds), {}
+    for name, (profile, context) in DRIVERS.items():
+        def run(policy, seed: int, profile=profile, context=context) -> dict:
+            env = history_env("Town1", {"route": route, "user": profile, "context": context}, config=CONFIG,
+                              seed=seed)
+            return episode_metrics(drive(env, policy))
+
+        shifts = {k: [run(ShiftedExplore(k), s)["tracking_cost"] for s in seeds] for k in SHIFTS}
+        best = min(SHIFTS, key=lambda k: (statistics.mean(shifts[k]), abs(k)))
+        explore = [run(explore_module(), s) for s in seeds]
+        planner = RetimingPlanner(DriverImaginedEnv([true_params(profile, context)]),
+                                  departure=Departure(**DRIVER_PLANNER["departure"]), **OPTIONS)
+        planned = [run(planner, s) for s in seeds]
+        leads = [p["turn_lead"] - e["turn_lead"] for p, e in zip(planned, explore, strict=True)
+                 if p["turn_lead"] is not None and e["turn_lead"] is not None]
+        report[name] = {
+            "shift_costs": {str(k): {"mean": round(statistics.mean(c), 1), "ci": [round(x, 1) for x in bootstrap_ci(c)[1:]]}
+                            for k, c in shifts.items()},
+            "best_shift": best,
+            "planner_lead_minus_explore_s": round(statistics.mean(leads), 2) if leads else None,
+            "planner_cost": round(statistics.mean(p["tracking_cost"] for p in planned), 1),
+            "explore_cost": round(statistics.mean(e["tracking_cost"] for e in explore), 1)}
+        print(name, json.dumps(report[name]))
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"seeds": args.seeds, "drivers": report}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
