@@ -422,13 +422,12 @@ def test_the_session_files_audio_sets_the_speakers_volume_voice_and_playback(tmp
 
 
 # ----- what the participant sees --------------------------------------------------------------------------------
-@pytest.mark.slow
-def test_no_string_drawn_names_a_block_a_policy_or_the_cost(study, tmp_path, monkeypatch):
+def _record_drawn(monkeypatch) -> list[str]:
+    """Every string drawn in the window from now on (each font render), with the drives cut to 6 steps."""
     import pygame
 
     import pernav.play.loop as loop
     import pernav.play.screens as screens
-    from pernav.play.controls import ScriptedControls
 
     drawn: list[str] = []
     font = pygame.font.Font
@@ -442,6 +441,32 @@ def test_no_string_drawn_names_a_block_a_policy_or_the_cost(study, tmp_path, mon
     screens._font.cache_clear()
     run = loop.PlaySession.run
     monkeypatch.setattr(loop.PlaySession, "run", lambda self, max_steps=0: run(self, max_steps=6))  # short drives
+    return drawn
+
+
+@pytest.mark.parametrize("counters", [True, False])
+def test_live_counters_are_drawn_only_in_a_block_that_shows_them(counters, tmp_path, monkeypatch):
+    import pernav.play.screens as screens
+    from pernav.play.controls import ScriptedControls
+
+    drawn = _record_drawn(monkeypatch)
+    plan = {"participants": ["S01"], "traffic": 0, "countdown": 0,
+            "blocks": [{"name": "a", "routes": [0], "counters": counters}]}
+    session = LabSession(load_plan(_write(tmp_path, plan)), "S01", tmp_path / "out", window=True,
+                         controls=ScriptedControls, announce=lambda s: None, options=LabOptions(realtime=False))
+    result = session.run()
+    screens._font.cache_clear()
+    assert result.finished and len(drawn) > 20
+    shown = [s for s in drawn if any(w in s for w in ("collisions", "kerb strikes", "missed turns", "re-routes"))]
+    assert bool(shown) == counters, shown[:3]
+
+
+@pytest.mark.slow
+def test_no_string_drawn_names_a_block_a_policy_or_the_cost(study, tmp_path, monkeypatch):
+    import pernav.play.screens as screens
+    from pernav.play.controls import ScriptedControls
+
+    drawn = _record_drawn(monkeypatch)
     plan = {**_plan(study), "participants": ["S02"], "ssq": ["after_block"],
             "blocks": _plan(study)["blocks"][:2], "questionnaire": {"questions": [{"id": "q", "text": "How hard?",
                                                                                    "scale": [1, 7]}]}}
