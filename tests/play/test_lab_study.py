@@ -129,6 +129,7 @@ def test_three_participants_drive_the_learners_as_counterbalanced_conditions(lab
         assert any("you react about" in line for r in learned for line in r["shown"])
         events = [json.loads(x)["event"] for x in (folder / "events.jsonl").read_text().splitlines()]
         assert events[0] == "start" and events[-1] == "end" and "consent" in events and "killed" not in events
+        assert events.count("break") == 2  # between the first and second blocks, and the second and third
     assert any("you react about" in line for line in lines)
 
 
@@ -480,6 +481,7 @@ def test_no_string_drawn_names_a_block_a_policy_or_the_cost(study, tmp_path, mon
     assert result.finished and len(drawn) > 100
     assert any("Part 1 of 2" in s for s in drawn) and any("react about" in s for s in drawn)
     assert any("Consent" in s for s in drawn) and any("Instructions" in s for s in drawn)
+    assert any("Part 2 of 2 comes next" in s for s in drawn)  # the break screen between the two blocks
     words = [*BLOCK_NAMES, *POLICY_NAMES, "cost"]
     assert not [s for s in drawn if any(w in s.lower() for w in words)]
     assert any("collisions" in s for s in drawn)  # the explore block's counters; the belief block shows none
