@@ -4,6 +4,9 @@ watched."""
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -100,3 +103,17 @@ def lab_study(tmp_path_factory) -> Path:
         run_study(cfg, out, report=False)
 
     return shared_folder(tmp_path_factory, "play_lab_study", build)
+
+
+def kill_when(process: subprocess.Popen, ready: Callable[[], bool], settle: float, timeout: float = 240.0) -> None:
+    """SIGKILL ``process`` ``settle`` s after ``ready()`` first holds (a session's kill at a chosen point), and check
+    that it was killed there, not finished before."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and process.poll() is None:
+        if ready():
+            time.sleep(settle)
+            process.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    process.wait()
+    assert process.returncode == -signal.SIGKILL, "the session finished before it could be killed"

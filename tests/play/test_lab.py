@@ -6,14 +6,13 @@ from __future__ import annotations
 import itertools
 import json
 import os
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
+from play_helpers import kill_when
 
 from pernav.cli import main
 from pernav.play.lab import LabSession
@@ -139,15 +138,8 @@ def test_a_session_killed_mid_drive_resumes_at_the_next_undriven_drive_with_noth
     env = {**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"}
     process = subprocess.Popen([sys.executable, "-c", _RUN, str(path), str(out)], env=env)
     progress = out / "P1" / "progress.jsonl"
-    deadline = time.time() + 240
-    while time.time() < deadline and process.poll() is None:  # kill it once the first drive is committed
-        if progress.exists() and progress.read_text().count("\n") >= 1:
-            time.sleep(0.3)  # well into the second drive
-            process.send_signal(signal.SIGKILL)
-            break
-        time.sleep(0.05)
-    process.wait()
-    assert process.returncode == -signal.SIGKILL, "the session finished before it could be killed"
+    # killed 0.3 s after the first drive is committed: well into the second drive
+    kill_when(process, lambda: progress.exists() and progress.read_text().count("\n") >= 1, settle=0.3)
     folder = out / "P1"
     first = {p.name: p.read_bytes() for p in (folder / "drives").iterdir()}
     committed = json.loads(progress.read_text().splitlines()[0])

@@ -12,10 +12,8 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -23,7 +21,7 @@ import pytest
 import torch
 import yaml
 from navigation_helpers import shared_folder
-from play_helpers import lab_study
+from play_helpers import kill_when, lab_study
 
 from pernav.cli import main
 from pernav.play import ssq
@@ -224,15 +222,8 @@ def test_a_session_killed_in_the_belief_block_resumes_with_its_belief_intact(lab
     answer = inspect.getsource(_answer)
     process = subprocess.Popen([sys.executable, "-c", _RUN, str(path), str(out), answer], env=env)
     progress = out / "S01" / "progress.jsonl"
-    deadline = time.time() + 240
-    while time.time() < deadline and process.poll() is None:  # kill it in the belief block's drive
-        if progress.exists() and "ssq:baseline" in progress.read_text():
-            time.sleep(0.4)
-            process.send_signal(signal.SIGKILL)
-            break
-        time.sleep(0.02)
-    process.wait()
-    assert process.returncode == -signal.SIGKILL, "the session finished before it could be killed"
+    # killed in the belief block's drive: 0.4 s after the SSQ that follows the first block is committed
+    kill_when(process, lambda: progress.exists() and "ssq:baseline" in progress.read_text(), settle=0.4)
     folder = out / "S01"
     before = _bytes(folder)
     state = before.pop("belief.pt", None)  # the learner's state: written whole after each drive it reads
@@ -262,6 +253,16 @@ def _session(capsys, *args: str) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+def _refused(capsys, path: Path, participant: str, out: Path, watched: Path, *more: str) -> str:
+    """``pernav session path --participant P --out OUT --headless --no-audio ...``: exit 2, one line, and every byte
+    under ``watched`` as it was. Returns the line."""
+    before = _bytes(watched)
+    code, err = _session(capsys, str(path), "--participant", participant, "--out", str(out), "--headless",
+                         "--no-audio", *more)
+    assert code == 2 and err.count("\n") == 1 and _bytes(watched) == before
+    return err
+
+
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory):
     """S01's finished session of a one-drive file without a study (what the refusals copy and mix up)."""
@@ -278,35 +279,25 @@ def test_a_folder_holding_another_participants_data_is_refused(finished, tmp_pat
     (mixed / "S02" / "drives").mkdir(parents=True)
     shutil.copy(out / "S01" / "session.csv", mixed / "S02" / "session.csv")
     shutil.copytree(out / "S01" / "drives", mixed / "S02" / "drives", dirs_exist_ok=True)
-    before = _bytes(mixed)
-    code, err = _session(capsys, str(path), "--participant", "S02", "--out", str(mixed), "--headless", "--no-audio")
-    assert code == 2 and err.count("\n") == 1 and "did not write" in err and _bytes(mixed) == before
+    assert "did not write" in _refused(capsys, path, "S02", mixed, mixed)
     other = tmp_path / "other"
     (other / "S02").mkdir(parents=True)
     shutil.copy(out / "S01" / "session.json", other / "S02" / "session.json")
-    before = _bytes(other)
-    code, err = _session(capsys, str(path), "--participant", "S02", "--out", str(other), "--headless", "--no-audio")
-    assert code == 2 and err.count("\n") == 1 and "--resume" in err and _bytes(other) == before
+    assert "--resume" in _refused(capsys, path, "S02", other, other)
 
 
 def test_a_copied_folder_resumed_as_another_participant_is_refused(finished, tmp_path, capsys):
     out, path = finished
     copy = tmp_path / "out"
     shutil.copytree(out / "S01", copy / "S02")
-    before = _bytes(copy)
-    code, err = _session(capsys, str(path), "--participant", "S02", "--out", str(copy), "--headless", "--no-audio",
-                         "--resume")
-    assert code == 2 and err.count("\n") == 1 and "'S01'" in err and _bytes(copy) == before
+    assert "'S01'" in _refused(capsys, path, "S02", copy, copy, "--resume")
 
 
 def test_an_out_folder_that_is_a_participants_folder_is_refused(finished, tmp_path, capsys):
     out, path = finished
     copy = tmp_path / "out"
     shutil.copytree(out / "S01", copy / "S01")
-    before = _bytes(copy)
-    code, err = _session(capsys, str(path), "--participant", "S02", "--out", str(copy / "S01"), "--headless",
-                         "--no-audio")
-    assert code == 2 and err.count("\n") == 1 and "participant's folder" in err and _bytes(copy) == before
+    assert "participant's folder" in _refused(capsys, path, "S02", copy / "S01", copy)
 
 
 @pytest.mark.parametrize("extra", ["notes.csv", "drives/99-other-Town1-r0.pt"])
@@ -315,10 +306,7 @@ def test_a_folder_with_files_the_session_did_not_write_is_not_resumed(finished, 
     copy = tmp_path / "out"
     shutil.copytree(out / "S01", copy / "S01")
     (copy / "S01" / extra).write_text("someone else's")
-    before = _bytes(copy)
-    code, err = _session(capsys, str(path), "--participant", "S01", "--out", str(copy), "--headless", "--no-audio",
-                         "--resume")
-    assert code == 2 and err.count("\n") == 1 and extra in err and _bytes(copy) == before
+    assert extra in _refused(capsys, path, "S01", copy, copy, "--resume")
 
 
 def test_files_saved_but_not_committed_are_kept_under_an_attempt_name(finished, tmp_path):
