@@ -20,6 +20,7 @@ def _doc_blocks() -> list[str]:
     return re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(9))
 def test_docs_example_runs_on_its_own(index: int, tmp_path, monkeypatch, capfd) -> None:
     """Every example of docs/components.md, alone in a fresh namespace and folder (as a reader would paste it):

@@ -287,6 +287,7 @@ CORRUPTIONS = ("unknown_field", "context", "phase", "town", "missing_driver", "d
                "driver_value", "driver_name", "late_offline", "missing_label", "missing_phase")
 
 
+@pytest.mark.slow
 @FAST
 @given(schedules(), st.sampled_from(CORRUPTIONS), st.data())
 def test_one_corruption_names_entry_and_field(rows, kind, data):

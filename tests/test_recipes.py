@@ -29,6 +29,7 @@ def _study_results(seed: int, costs: dict[str, list[float]]) -> dict:
     return {"config": {"seed": seed}, "iterations": [{"label": "Online 0", "phase": "online", "towns": towns}]}
 
 
+@pytest.mark.slow
 def test_pool_seeds_pairs_two_protocols_on_the_same_episodes(tmp_path):
     pool = _recipe("pool_seeds")
     a = [_study_results(s, {"explore": [10.0, 20.0, 30.0], "adapt": [8.0, 20.0, 25.0 + s]}) for s in (0, 1)]

@@ -105,12 +105,14 @@ def test_the_pointer_reader_finds_paths_and_leaves_patterns_and_outputs(tmp_path
         == [False, True, False]
 
 
+@pytest.mark.slow
 def test_every_path_named_in_a_python_comment_or_docstring_exists() -> None:
     gone = [f"{where}: {path}" for where, commit, path in python_pointers(ROOT) if commit is None
             and missing(ROOT, path)]
     assert not gone, "point these at where the file lives now (or at <commit>:path):\n" + "\n".join(gone)
 
 
+@pytest.mark.slow
 def test_every_path_pointed_into_a_commit_is_in_that_commit() -> None:
     """``<commit>:path`` pointers in code prose and in the research README (its archive commands): a clone has the
     commit and the commit has the path."""
@@ -265,6 +267,7 @@ def test_the_import_reader_finds_names_imported_through_another_module(tmp_path:
         "pernav/a/__init__.py:1: f via pernav.a.m", "tests/t.py:1: f via pernav.a.m", "tests/t.py:6: f via pernav.a.m"]
 
 
+@pytest.mark.slow
 def test_names_are_imported_from_the_module_that_defines_them() -> None:
     through = imports_through(ROOT, ("pernav", "tests", "recipes", "docs/research/scripts"))
     assert not through, "import these from the module that defines them:\n" + "\n".join(through)

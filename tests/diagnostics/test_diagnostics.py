@@ -25,6 +25,7 @@ def test_each_diagnostic_says_what_it_shows_how_long_it_takes_and_how_to_run_it(
     assert f"python -m pernav.diagnostics.{name}" in doc and "pernav diagnose" in doc
 
 
+@pytest.mark.slow
 def test_planning_error_resume_refuses_to_mix_retime_defaults_and_leaves_the_file(tmp_path):
     from pernav.diagnostics.panel import PANEL
 

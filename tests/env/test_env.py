@@ -44,6 +44,7 @@ def _trajectory(seed):
     return np.array(out)
 
 
+@pytest.mark.slow
 def test_seeded_runs_are_reproducible():
     a, b = _trajectory(7), _trajectory(7)
     np.testing.assert_array_equal(a, b)

@@ -86,6 +86,7 @@ def test_imagined_navigation_env_passes_check_env_specs():
         env.reset(TensorDict({"history": torch.zeros(5, 21)}, []))
 
 
+@pytest.mark.slow
 def test_learning_side_imports_no_simulator():
     # one interpreter for the four: if all of them together load none of the heavy modules, none of them does
     code = ("import sys, pernav.transforms, pernav.model, pernav.planner, pernav.trainer; "
@@ -259,6 +260,7 @@ def test_history_window_records_a_scalar_observation_as_one_column():
     assert torch.equal(data["next", "history"][:, -2, 1:].argmax(-1), data["action"])
 
 
+@pytest.mark.slow
 def test_generic_packages_export_generic_parts_and_load_no_navigation():
     """``pernav.planner`` loads neither the navigation's cost nor its layout; the navigation's parts live in
     their own modules, and the packages still name them."""
@@ -333,6 +335,7 @@ def test_plain_model_learns_a_linear_system_and_adapts_to_a_changed_one() -> Non
     assert not torch.equal(one_step["net", "0", "weight"], adapted["net", "0", "weight"])
 
 
+@pytest.mark.slow
 def test_ftml_and_ensemble_train_a_plain_model() -> None:
     buffers = RoundBuffers(L=3, seed=0)
     for r, gain in enumerate((1.0, -1.0, 0.5, -0.5)):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 
+import pytest
 import torch
 from navigation_helpers import S
 from navigation_helpers import seeded_model as _model
@@ -42,6 +43,7 @@ def _outer(model, params, tau, batch, key, first_order: bool = False):
     return f
 
 
+@pytest.mark.slow
 def test_meta_gradient_matches_finite_differences() -> None:
     model, params, tau, batch = _meta_problem()
     for key in (("net", "0", "bias"), ("net", "2", "weight")):

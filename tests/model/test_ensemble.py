@@ -117,6 +117,7 @@ def test_batched_ensemble_update_equals_each_member_stepping_alone(context):
         assert not torch.equal(batched.members[0].model.net[0].weight, make(first_order).members[0].model.net[0].weight)
 
 
+@pytest.mark.slow
 def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_the_ensemble_alone():
     from pernav.model.adapt import trajectory_windows
     from pernav.model.losses import multistep_loss
@@ -146,6 +147,7 @@ def test_fine_tuned_fits_the_users_drives_from_the_meta_parameters_and_leaves_th
         ens.fine_tuned(user, updates=0)
 
 
+@pytest.mark.slow
 def test_replayed_personal_updates_fit_the_user_and_forget_the_population_less():
     from pernav.model.adapt import trajectory_windows
     from pernav.model.losses import multistep_loss
@@ -344,6 +346,7 @@ def test_a_context_model_adapts_only_its_context_and_the_meta_update_trains_the_
         DynamicsModel(context=-1)
 
 
+@pytest.mark.slow
 def test_context_adaptation_learns_which_round_it_is_from_tau():
     """Two rounds whose next states differ by a constant shift only (the same windows otherwise): a context
     model meta-trained on them predicts each round better after one step on its tau than before it."""

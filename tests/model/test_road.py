@@ -27,6 +27,7 @@ def drive():
     return drive(history_env("Town3", {"route": 0}, config={"n_traffic": 2}, seed=0, K=5), explore_module())
 
 
+@pytest.mark.slow
 def test_road_points_on_a_drive_start_at_the_car_and_match_the_imagined_projection(drive):
     road = road_points(drive["route_ahead"])  # what the buffers store
     assert road.shape == (drive.shape[0], ROAD_MAX, 2)
@@ -109,6 +110,7 @@ def _turns(n: int, seed: int) -> TensorDict:
     return torch.stack([TensorDict(r, []) for r in rows])
 
 
+@pytest.mark.slow
 def test_a_model_that_reads_the_road_learns_where_the_car_turns_and_one_without_cannot():
     train, held = _turns(256, 0).unsqueeze(1), _turns(128, 1).unsqueeze(1)  # [B, 1] one-step windows
     losses = {}

@@ -215,6 +215,7 @@ def test_toy_env_specs_pass() -> None:
 
 
 # ----- the paper planner: the same decisions as the search it replaced ------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("index", range(5))
 def test_paper_planner_decides_as_before(index: int) -> None:
     """Decisions recorded with the paper planner (tests/data/make_paper_planner_fixture.py, which runs on the

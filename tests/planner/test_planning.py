@@ -241,6 +241,7 @@ def test_comparison_table_pairs_episodes_by_driver_town_route_and_seed():
     assert rows["x"][5].strip() == "6 (6)"  # missed turns summed over the same episodes as explore's
 
 
+@pytest.mark.slow
 def test_panel_job_on_a_learned_model_reads_the_history_the_model_was_trained_with():
     model = DynamicsModel(n_actions=7, K=10, hidden=(8,))
     spec = {"config": model.config(), "state": model.state_dict()}
@@ -269,6 +270,7 @@ def _collect(policy, seed: int = 5):
     return drive(env, policy, max_steps=80)
 
 
+@pytest.mark.slow
 def test_retimed_explore_is_explore_at_p0_and_retimes_explore_prompts_otherwise():
     from pernav.env.torchrl_env import explore_module
     from pernav.planner import RetimedExplore

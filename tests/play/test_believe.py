@@ -38,6 +38,7 @@ def session(belief_study, tmp_path_factory):
     return s, s.run(), lines, record
 
 
+@pytest.mark.slow
 def test_each_whole_drive_updates_the_belief_and_tells_the_person(session):
     s, result, lines, record = session
     assert [d["policy"] for d in result.drives] == ["explore", "belief", "belief"] and not result.interrupted
@@ -53,6 +54,7 @@ def test_each_whole_drive_updates_the_belief_and_tells_the_person(session):
     assert sum("'turn' prompt at 50 km/h" in line for line in lines) == 3
 
 
+@pytest.mark.slow
 def test_the_session_keeps_its_drives_and_the_posterior(session):
     s, result, lines, record = session
     assert all(load_drive(d["file"])["next", "frames"].shape[-2:] == (10, 5) for d in result.drives)
@@ -63,6 +65,7 @@ def test_the_session_keeps_its_drives_and_the_posterior(session):
     assert "| drive 3 |" in (record / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_hide_cost_keeps_the_cost_out_of_what_the_person_is_told(belief_study):
     lines: list[str] = []
     options = SessionOptions(n_traffic=0, hide_cost=True)
@@ -79,6 +82,7 @@ def test_the_prompts_follow_the_belief():
     assert table.splitlines()[2] == "| drive 2 | 1.50 s | 1.10-2.00 s | 12 | 3.0 s |"
 
 
+@pytest.mark.slow
 def test_cli_personalize_with_the_belief_learner(belief_study, tmp_path, capsys):
     rec = tmp_path / "me"
     assert main(["personalize", "--study", str(belief_study), "--town", "Town1", "--routes", "0", "1", "--headless",
@@ -93,6 +97,7 @@ def test_cli_personalize_with_the_belief_learner(belief_study, tmp_path, capsys)
     (["--updates", "3"], "--updates goes with a model-based learner"),
     (["--learner", "belief2"], "choose one of"),
 ])
+@pytest.mark.slow
 def test_cli_belief_refusals_before_anyone_drives(args, words, belief_study, tmp_path, capsys):
     args = [a.format(tmp=tmp_path) for a in args]
     learner = [] if "--learner" in args else ["--learner", "belief"]
@@ -103,6 +108,7 @@ def test_cli_belief_refusals_before_anyone_drives(args, words, belief_study, tmp
     assert not any(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_a_study_without_the_belief_learner_is_refused_by_name(belief_study, tmp_path):
     import shutil
 
@@ -122,6 +128,7 @@ def test_a_study_without_the_belief_learner_is_refused_by_name(belief_study, tmp
         BeliefSession(other, "Town1", [0, 1])
 
 
+@pytest.mark.slow
 def test_cli_hide_cost_prints_no_cost_in_the_terminal(belief_study, tmp_path, capsys):
     rec = tmp_path / "me"
     assert main(["personalize", "--study", str(belief_study), "--town", "Town1", "--routes", "0", "1", "--headless",
@@ -131,6 +138,7 @@ def test_cli_hide_cost_prints_no_cost_in_the_terminal(belief_study, tmp_path, ca
     assert "tracking cost" in (rec / "summary.md").read_text()
 
 
+@pytest.mark.slow
 def test_a_windowed_belief_session_keeps_one_window_and_ends_with_thanks(belief_study, monkeypatch):
     import pygame
     from play_helpers import watch_session_window
@@ -150,6 +158,7 @@ def test_a_windowed_belief_session_keeps_one_window_and_ends_with_thanks(belief_
     assert not any("cost" in line for p in panels for line in p)
 
 
+@pytest.mark.slow
 def test_a_folder_holding_a_belief_session_is_refused_without_suggesting_resume(session, belief_study):
     # a belief session is not resumed (its drives and belief.pt stay as driven): its refusal must not point to --resume
     *_, record = session

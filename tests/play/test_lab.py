@@ -88,6 +88,7 @@ def test_a_participant_not_in_the_file_is_refused(tmp_path):
         LabSession(parse_plan(PLAN), "P9", tmp_path)
 
 
+@pytest.mark.slow
 def test_two_participants_of_a_latin_square_with_scripted_inputs(tmp_path):
     plan = load_plan(_write(tmp_path, PLAN))
     for participant in ("P1", "P2"):
@@ -112,6 +113,7 @@ def test_two_participants_of_a_latin_square_with_scripted_inputs(tmp_path):
         assert len(list((folder / "drives").glob("*.pt"))) == 2
 
 
+@pytest.mark.slow
 def test_an_existing_session_is_not_overwritten_without_resume(tmp_path):
     plan = parse_plan(PLAN, text="x")
     LabSession(plan, "P1", tmp_path, answer=_answer, announce=lambda s: None).run()
@@ -131,6 +133,7 @@ LabSession(load_plan(sys.argv[1]), "P1", sys.argv[2], answer=lambda q, b: 4, res
 """
 
 
+@pytest.mark.slow
 def test_a_session_killed_mid_drive_resumes_at_the_next_undriven_drive_with_nothing_rewritten(tmp_path):
     plan = {**PLAN, "blocks": [{"name": "rule", "routes": [0, 1]}, {"name": "oracle", "policy": "oracle",
                                                                      "routes": [0]}]}
@@ -158,6 +161,7 @@ def test_a_session_killed_mid_drive_resumes_at_the_next_undriven_drive_with_noth
     assert table[table["row"] == "drive"]["drive"].tolist() == [1, 2, 3]  # no drive twice, none lost
 
 
+@pytest.mark.slow
 def test_the_command_line_checks_and_runs_a_session(tmp_path, capsys):
     path = _write(tmp_path, {k: v for k, v in PLAN.items() if k != "questionnaire"})
     assert main(["session", str(path), "--check"]) == 0

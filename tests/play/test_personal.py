@@ -43,6 +43,7 @@ def session(study_dir, tmp_path_factory):
     return s, s.run(), lines
 
 
+@pytest.mark.slow
 def test_session_drives_tau_then_both_policies(session):
     s, result, _ = session
     assert not result.interrupted
@@ -55,6 +56,7 @@ def test_session_drives_tau_then_both_policies(session):
     assert adapted["adapted_on_round"] == 0  # planned with the parameters adapted on tau
 
 
+@pytest.mark.slow
 def test_drives_are_recorded_and_load(session):
     s, result, _ = session
     for d in result.drives:
@@ -68,6 +70,7 @@ def test_drives_are_recorded_and_load(session):
     assert len(saved["trainer"]["members"]) == len(s.study.members)
 
 
+@pytest.mark.slow
 def test_summary_table_has_both_policies_in_range(session):
     s, result, _ = session
     summary = json.loads((s.record_dir / "summary.json").read_text())
@@ -84,6 +87,7 @@ def test_summary_table_has_both_policies_in_range(session):
     assert "| adapted | 1 |" in table and "| explore | 1 |" in table
 
 
+@pytest.mark.slow
 def test_prompts_and_announcements_do_not_tell_the_policy(session):
     _, result, lines = session
     assert sum(line.startswith("Drive ") for line in lines) == len(result.drives)
@@ -91,6 +95,7 @@ def test_prompts_and_announcements_do_not_tell_the_policy(session):
         assert not any(word in line.lower() for word in ("explore", "adapt", "mpc", "study", "policy"))
 
 
+@pytest.mark.slow
 def test_meta_model_learns_and_adapted_parameters_differ(session, study_dir):
     s, _, _ = session
     study = FinishedStudy.open(study_dir).model("Town1")
@@ -105,6 +110,7 @@ def test_meta_model_learns_and_adapted_parameters_differ(session, study_dir):
     assert s.policy.planner.params is s.params
 
 
+@pytest.mark.slow
 def test_order_is_random_but_reproducible(study_dir):
     routes = list(range(10))
     orders = {seed: PersonalSession(study_dir, "Town1", routes, options=SessionOptions(seed=seed)).order
@@ -115,6 +121,7 @@ def test_order_is_random_but_reproducible(study_dir):
     assert len({tuple(order) for order in orders.values()}) > 1  # and the seed changes them
 
 
+@pytest.mark.slow
 def test_adapted_policy_plans_on_the_studys_env(study_dir, session):
     tau = load_drive(session[1].drives[0]["file"])
     policy, info = study_policy(study_dir, "Town1", tau)
@@ -135,6 +142,7 @@ def test_adapted_policy_plans_on_the_studys_env(study_dir, session):
         study_policy(study_dir, "Town1", PlaySession("Town1", 0, options=PlayOptions(n_traffic=0)).run(3).trajectory)
 
 
+@pytest.mark.slow
 def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
     made = []
 
@@ -152,6 +160,7 @@ def test_quitting_ends_the_session_with_what_was_driven(study_dir, tmp_path):
     assert "| adapted | 0 | - |" in summary_markdown(summary)
 
 
+@pytest.mark.slow
 def test_a_windowed_session_keeps_one_window_shows_the_wait_and_the_end(study_dir, monkeypatch):
     import pygame
     from play_helpers import watch_session_window
@@ -179,6 +188,7 @@ def test_a_windowed_session_keeps_one_window_shows_the_wait_and_the_end(study_di
     assert not any("cost" in line for p in panels for line in p)
 
 
+@pytest.mark.slow
 def test_bad_study_folders(study_dir, tmp_path):
     with pytest.raises(StudyError, match="no study folder"):
         FinishedStudy.open(tmp_path / "none")
@@ -223,6 +233,7 @@ def _exits_2_and_writes_nothing(command: str, args: list[str], study_dir, tmp_pa
     ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--learner", "hindsight"],
     ["--study", "{study}", "--town", "Town1", "--routes", "0", "1", "--learner", "sysid"],  # not in the study
 ])
+@pytest.mark.slow
 def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
     _exits_2_and_writes_nothing("personalize", args, study_dir, tmp_path, capsys)
 
@@ -237,10 +248,12 @@ def test_cli_personalize_bad_input_exits_2_and_writes_nothing(args, study_dir, t
     ["--learner", "adapt"],  # --learner goes with --policy study
     ["--policy", "study", "--study", "{study}", "--learner", "nope"],
 ])
+@pytest.mark.slow
 def test_cli_play_study_bad_input_exits_2_and_writes_nothing(args, study_dir, tmp_path, capsys):
     _exits_2_and_writes_nothing("play", args, study_dir, tmp_path, capsys)
 
 
+@pytest.mark.slow
 def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, capsys):
     rec = tmp_path / "me"
     assert main(["personalize", "--study", str(study_dir), "--town", "Town1", "--routes", "0", "1", "--headless",
@@ -257,6 +270,7 @@ def test_cli_personalize_then_play_with_the_recorded_tau(study_dir, tmp_path, ca
     assert load_drive(out["record"]).shape[0] == out["steps"]
 
 
+@pytest.mark.slow
 def test_adapt_speed_chooses_playback_and_learns_in_its_action_space(study_dir, tmp_path, capsys):
     options = SessionOptions(seed=0, record_dir=tmp_path / "me", n_traffic=1, updates=1, learner="adapt_speed",
                              progress=False)
@@ -281,6 +295,7 @@ def test_adapt_speed_chooses_playback_and_learns_in_its_action_space(study_dir, 
     assert load_drive(shown["record"])["history"].shape[-1] == state + 21
 
 
+@pytest.mark.slow
 def test_a_sysid_session_trains_plainly_and_plans_unadapted(tmp_path, monkeypatch):
     from pernav.study import preset, run_study
 
@@ -303,6 +318,7 @@ class Killed(BaseException):
     """The process killed (nothing after it runs: no summary, no clean-up)."""
 
 
+@pytest.mark.slow
 def test_a_session_killed_after_drive_2_resumes_with_its_tau_and_drives(session, study_dir, tmp_path):
     full, full_result, _ = session  # the same session driven without a break
     record = tmp_path / "me"
@@ -346,6 +362,7 @@ def test_a_session_killed_after_drive_2_resumes_with_its_tau_and_drives(session,
         PersonalSession(study_dir, "Town1", [0, 1], options=replace(options, resume=True, progress=True))
 
 
+@pytest.mark.slow
 def test_cli_personalize_ctrl_c_keeps_the_drive_in_progress_and_exits_130(study_dir, tmp_path, capsys, monkeypatch):
     def poll(self) -> None:  # Ctrl-C two seconds into the first drive
         if self.frames >= 25:
@@ -373,6 +390,7 @@ def test_cli_personalize_ctrl_c_keeps_the_drive_in_progress_and_exits_130(study_
     (["--record", "{tmp}/file/me"], "cannot be written"),
     (["--countdown", "-1", "--record", "{tmp}/me"], "--countdown"),
 ])
+@pytest.mark.slow
 def test_cli_personalize_refusals_before_anyone_drives(args, words, study_dir, tmp_path, capsys):
     (tmp_path / "file").write_text("x")
     (tmp_path / "empty").mkdir()
@@ -384,6 +402,7 @@ def test_cli_personalize_refusals_before_anyone_drives(args, words, study_dir, t
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "file"] and not any((tmp_path / "empty").iterdir())
 
 
+@pytest.mark.slow
 def test_cli_play_refuses_a_tau_of_another_town_or_history(study_dir, tmp_path, capsys):
     from pernav.trainer.drives import save_drive
 
@@ -404,6 +423,7 @@ def test_cli_play_refuses_a_tau_of_another_town_or_history(study_dir, tmp_path, 
     assert not (tmp_path / "rec").exists()
 
 
+@pytest.mark.slow
 def test_cli_play_for_a_study_records_its_history(study_dir, tmp_path, capsys):
     assert main(["play", "--study", str(study_dir), "--headless", "--no-audio", "--traffic", "0", "--record",
                  str(tmp_path / "rec"), "--json"]) == 0

@@ -34,6 +34,7 @@ def bot_drive():
     return PlaySession("Town1", 0, options=PlayOptions(n_traffic=2, seed=0)).run()
 
 
+@pytest.mark.slow
 def test_bot_drives_a_whole_route(bot_drive):
     m = bot_drive.metrics
     assert m["completed"] and not m["interrupted"]
@@ -78,6 +79,7 @@ class _RouteFollower:
                             brake=0.3 if car.speed > 8.5 else 0.0)
 
 
+@pytest.mark.slow
 def test_lanes_and_choices_of_a_person_are_found_from_where_the_car_is():
     env = NavigationEnv("Town1", config={"n_traffic": 0})
     _, info = env.reset(seed=0, options={"route": 0})
@@ -107,6 +109,7 @@ def _simulated(hooks: bool) -> dict:
     return {k: info[k] for k in METRICS}
 
 
+@pytest.mark.slow
 def test_simulated_drivers_are_unchanged_by_the_extension():
     plain = _simulated(hooks=False)
     assert _simulated(hooks=True) == plain
@@ -115,6 +118,7 @@ def test_simulated_drivers_are_unchanged_by_the_extension():
     assert plain["tracking_cost"] == pytest.approx(349.1481049516626, rel=1e-6)  # another CPU: 349.14810494758467
 
 
+@pytest.mark.slow
 def test_recorded_drive_trains_a_model(bot_drive, tmp_path):
     from pernav.env.torchrl_env import explore_module
     from pernav.model import DynamicsModel
@@ -153,6 +157,7 @@ def test_quit_mid_drive_keeps_the_whole_steps():
     assert result.trajectory.shape[0] == 2  # the third second was cut short: not recorded
 
 
+@pytest.mark.slow
 def test_cli_records_a_headless_drive(tmp_path, capsys):
     rec = tmp_path / "rec"
     assert main(["play", "--headless", "--traffic", "2", "--no-audio", "--record", str(rec), "--json"]) == 0
@@ -186,6 +191,7 @@ def test_cli_missing_joystick_exits_2(tmp_path, capsys, monkeypatch):
     assert not rec.exists()
 
 
+@pytest.mark.slow
 def test_screenshot_shows_road_car_and_prompt(tmp_path):
     import pygame
 
@@ -421,6 +427,7 @@ def test_cli_unwritable_record_folder_is_refused_before_the_drive(tmp_path, caps
     assert not (tmp_path / "deep").exists()  # the folders made for the probe are gone again
 
 
+@pytest.mark.slow
 def test_probe_leaves_a_writable_folder_as_it_was(tmp_path, capsys):
     rec = tmp_path / "rec"
     rec.mkdir()
@@ -448,6 +455,7 @@ def test_no_audio_device_is_a_warning_on_screen_and_in_the_terminal(tmp_path, ca
     assert capsys.readouterr().err == "" and notices[-1] is None
 
 
+@pytest.mark.slow
 def test_history_defaults_to_the_default_study(tmp_path, capsys):
     from pernav.study import preset
 

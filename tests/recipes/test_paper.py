@@ -252,6 +252,7 @@ def test_merge_refuses_what_is_not_a_compact_town():
         merge([synthetic()])
 
 
+@pytest.mark.slow
 def test_the_committed_page_is_what_build_makes_of_the_committed_results(tmp_path):
     """docs/paper.md's generated section against ``--build`` on docs/paper/results/*.json (with no town committed
     yet, against the page that says so)."""

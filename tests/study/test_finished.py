@@ -41,6 +41,9 @@ from pernav.trainer.ensemble import EnsembleTrainer  # noqa: E402
 from pernav.trainer.ftml import TrainConfig  # noqa: E402
 from pernav.world.constants import N_ADAPTIVE_ACTIONS  # noqa: E402
 
+# every test here opens a finished study, built on first use (about 35 s): not for `make test-fast`
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def models(tmp_path_factory) -> Path:

@@ -111,6 +111,7 @@ def test_features_read_what_the_navigation_saw_not_the_oracle() -> None:
     assert torch.isfinite(before).all()
 
 
+@pytest.mark.slow
 def test_a_late_answering_driver_is_prompted_earlier_and_one_inside_the_slack_as_explore(fitted) -> None:
     slow = fitted.belief(_tau("user3", Context(vehicle="cybertruck", visual="foggy"), 1, 3))
     fast = fitted.belief(_tau("user4", Context(), 1, 3))
@@ -222,6 +223,7 @@ def test_the_guard_keeps_an_early_exit_prompt_after_a_quick_drivers_commit_at_th
         belief_policy({**slow, "fastest": {"speed": 1.0}})
 
 
+@pytest.mark.slow
 def test_the_guarded_belief_names_a_quick_driver_beside_the_same_slow_belief(fitted) -> None:
     tau = _tau("user3", Context(vehicle="cybertruck", visual="foggy"), 1, 3)
     belief = fitted.belief(tau)
@@ -247,6 +249,7 @@ def _dropped(town: str, user: str, belief: dict, routes: range) -> int:
     return dropped
 
 
+@pytest.mark.slow
 def test_the_guarded_belief_waits_until_the_car_is_in_the_junction_box_before_the_one_meant() -> None:
     # a slow belief says the next junction's prompt as soon as the last one is passed, or before a bend; a driver who
     # hears it before entering that box takes it for that junction and drops it. The guard waits; explore's timing

@@ -129,6 +129,7 @@ def test_nan_loss_is_skipped_and_the_study_finishes(tmp_path, monkeypatch, caplo
         assert members and all(torch.isfinite(v).all() for m in members for v in m["model"].values())
 
 
+@pytest.mark.slow
 def test_pool_workers_exit_when_the_study_process_is_killed(tmp_path):
     # a killed `pernav study` must not leave its spawned workers computing (they outlived SIGTERM before)
     import os
@@ -169,6 +170,7 @@ def test_pool_workers_exit_when_the_study_process_is_killed(tmp_path):
     assert not any(alive(p) for p in pids)
 
 
+@pytest.mark.slow
 def test_a_pool_worker_that_starts_after_its_parent_died_exits():
     # a worker spawned just before its parent was killed reads os.getppid() as init's pid: it must not wait for
     # init to exit (one such worker outlived a test run)

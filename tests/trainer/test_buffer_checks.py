@@ -151,6 +151,7 @@ adds = st.lists(st.tuples(st.integers(0, 2), st.integers(1, 14), st.sampled_from
                 max_size=12)
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, derandomize=True)
 @given(adds)
 def test_random_adds_keep_lengths_true_and_windows_inside_one_trajectory(sequence: list) -> None:

@@ -139,6 +139,7 @@ def test_named_users_are_diverse():
     assert min(u.reaction_time for u in users) <= 0.7 and max(u.reaction_time for u in users) >= 2.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", TOWN_NAMES)
 def test_traffic_alone_does_not_crash(name):
     """Traffic only (the driver's car parked off the map): no traffic-traffic collision in 3 minutes."""
