@@ -204,15 +204,18 @@ class World:
         best, best_gap = None, np.inf
         ahead, starts, siblings = _path_ahead(self.town, tuple(car.path[:4]))
         h = car.direction
-        px, py = car.position
+        hx, hy = h.tolist()
+        # positions as Python floats: the same IEEE differences as numpy's, without a numpy scalar per operation
+        px, py = car.position.tolist()
         for other in self.cars:
             if other is car:
                 continue
-            ox, oy = other.position
-            if abs(ox - px) > 60.0 or abs(oy - py) > 60.0:  # hypot >= either leg: surely beyond 60 m
+            ox, oy = other.position.tolist()
+            rx, ry = ox - px, oy - py  # the components of ``other.position - car.position``, to the bit
+            if abs(rx) > 60.0 or abs(ry) > 60.0:  # hypot >= either leg: surely beyond 60 m
                 continue
             rel = other.position - car.position
-            dist = float(np.hypot(*rel))
+            dist = float(np.hypot(rx, ry))
             if dist > 60.0:
                 continue
             half = (car.LENGTH + other.LENGTH) / 2
@@ -225,12 +228,13 @@ class World:
                 if along > 0:
                     gap = along - half
             lon = float(np.dot(rel, h))
-            lat = abs(float(rel[0] * h[1] - rel[1] * h[0]))
-            # the corridor catches crossing and same-way cars; an oncoming car (waiting at the stop
-            # line of the arm a turning car leaves by) is in the other lane, not in the way
-            oncoming = float(np.dot(other.direction, h)) < -0.5
-            if 0 < lon < 35.0 and lat < (car.WIDTH + other.WIDTH) / 2 + 0.4 and not oncoming:
-                gap = min(gap, lon - half)
+            if 0 < lon < 35.0:  # the lateral offset and the other's heading only matter in this range
+                lat = abs(rx * hy - ry * hx)
+                # the corridor catches crossing and same-way cars; an oncoming car (waiting at the stop
+                # line of the arm a turning car leaves by) is in the other lane, not in the way
+                oncoming = float(np.dot(other.direction, h)) < -0.5
+                if lat < (car.WIDTH + other.WIDTH) / 2 + 0.4 and not oncoming:
+                    gap = min(gap, lon - half)
             if gap < best_gap:
                 best, best_gap = other, gap
         return best, best_gap
@@ -278,9 +282,13 @@ class World:
         cars = self.cars
         pos = np.array([c.position for c in cars])
         ego = self.ego
-        # every pair's centre distance in one pass (pairs i < j in row-major order, as a loop over i would)
+        # every pair's centre distance in one pass (pairs i < j in row-major order, as a loop over i would;
+        # skipping i >= j here is what np.triu did, without building a mask each frame)
         near = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1)) < 6.5
-        for i, j in zip(*np.nonzero(np.triu(near, k=1)), strict=True):
+        rows, cols = np.nonzero(near)
+        for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
+            if i >= j:
+                continue
             a, b = cars[i], cars[j]
             if not utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2), np.zeros(2))[0]:
                 if ego in (a, b):

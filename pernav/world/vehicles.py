@@ -39,13 +39,41 @@ class PathCar:
         """Move to the next lane of the path once past the end of the current one."""
         town = self.world.town
         lane = town.lane(self.path[0])
-        self.s = lane.local_coordinates(self.position)[0]
+        self.s = self.coordinates_on(lane)[0]
         while self.s > lane.length and len(self.path) > 1:
             self.s -= lane.length
             self.passed(self.path.pop(0))
             lane = town.lane(self.path[0])
-            self.s = lane.local_coordinates(self.position)[0]
+            self.s = self.coordinates_on(lane)[0]
         self.lane_index, self.lane = self.path[0], lane
+
+    def coordinates_on(self, lane) -> tuple[float, float]:
+        """``lane.local_coordinates(self.position)``, remembered for the last lane and position: :meth:`advance_path`
+        and :meth:`lane_steering` ask the same of the same lane within one act. Keyed on the lane object (lanes never
+        change while driving) and the position's exact bytes, so a hit is the value the call would return."""
+        key = self.position.tobytes()
+        hit = self.__dict__.get("_local_hit")
+        if hit is not None and hit[0] is lane and hit[1] == key:
+            return hit[2]
+        out = lane.local_coordinates(self.position)
+        self._local_hit = (lane, key, out)
+        return out
+
+    @property
+    def direction(self) -> np.ndarray:
+        """highway-env's ``[cos(heading), sin(heading)]``, computed once per heading (it is asked for several
+        times per frame: leader searches, closing speeds). Read-only, as it is shared by those callers."""
+        h = self.heading
+        hit = self.__dict__.get("_direction_hit")
+        # by identity: floats are immutable, so the same object is the same heading to the bit (the cache holds
+        # on to it, so a new heading is always a new object); anything but a float is not cached
+        if hit is not None and hit[0] is h:
+            return hit[1]
+        d = np.array([np.cos(h), np.sin(h)])
+        if isinstance(h, float):  # a Python or numpy float (np.float64 is one)
+            d.flags.writeable = False
+            self._direction_hit = (h, d)
+        return d
 
     def passed(self, lane: LaneIndex) -> None:
         """Called with each lane the car leaves (a hook: the driver's car keeps a trail)."""
@@ -62,7 +90,7 @@ class PathCar:
         """highway-env's cascaded lateral controller applied to the path (looks into the next lane)."""
         town = self.world.town
         lane = town.lane(self.path[0])
-        s, lat = lane.local_coordinates(self.position)
+        s, lat = self.coordinates_on(lane)
         ahead = s + max(self.speed, 1.0) * 0.35
         if ahead > lane.length and len(self.path) > 1:
             nxt = town.lane(self.path[1])
