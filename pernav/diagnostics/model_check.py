@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -92,37 +93,45 @@ def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsMod
     return model
 
 
+def approach_pairs(driver: str, town: str, episodes: int = 2, K: int = 10
+                   ) -> Iterator[tuple[TensorDictBase, Any, int, torch.Tensor]]:
+    """The diagnostic's approach states of the panel ``driver`` (explore's episodes, seeds ``900 + ep``): at each step
+    where a prompt of explore's plan is due within 1-4 steps, ``(root, live navigation env, step, pair)``, ``pair``
+    ``[2, max(STEPS)]`` the plan's next prompts now and the same :data:`DELAY` s later."""
+    for ep in range(episodes):
+        env = driver_env(driver, town, ep, 900 + ep, K)
+        td = env.reset()
+        nav = navigation_of(env)
+        for t in range(400):
+            future = td["explore_future"]
+            if bool(future[1:5].any()) and not bool(future[0]):
+                now = future[int(future[1:5].nonzero()[0]) + 1:][: max(STEPS)]
+                now = torch.cat([now, now[-1:].expand(max(STEPS) - now.shape[0])])
+                later = torch.cat([torch.zeros(DELAY, dtype=now.dtype), now[: max(STEPS) - DELAY]])
+                yield td, nav, t, torch.stack([now, later])
+            td = env.step(explore_module()(td))
+            if bool(td["next", "done"]):
+                break
+            td = td["next"]
+
+
 def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2, K: int = 10, ceiling: int = 0
                          ) -> dict[str, np.ndarray]:
     """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's; a model is an env with
     ``imagine`` and its parameters, ``None``: its own), from the history env of window ``K``; with ``ceiling``, also
     the true simulator's mean over that many fresh samples (``"ceiling"``)."""
     out: dict[str, list] = {"true": [], **({"ceiling": []} if ceiling else {}), **{k: [] for k in models}}
-    for ep in range(episodes):
-        env = driver_env(driver, town, ep, 900 + ep, K)
-        td = env.reset()
-        nav = navigation_of(env)
-        for _t in range(400):
-            future = td["explore_future"]
-            if bool(future[1:5].any()) and not bool(future[0]):
-                now = future[int(future[1:5].nonzero()[0]) + 1:][: max(STEPS)]
-                now = torch.cat([now, now[-1:].expand(max(STEPS) - now.shape[0])])
-                later = torch.cat([torch.zeros(DELAY, dtype=now.dtype), now[: max(STEPS) - DELAY]])
-                pair = torch.stack([now, later])
-                pos, _ = TrueDynamicsEnv(nav, samples=2, seed=_t).imagine(td, pair)
-                idx = [s - 1 for s in STEPS]
-                out["true"].append((pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
-                if ceiling:  # the simulator's own mean over ``ceiling`` fresh samples: what r can reach
-                    p, _ = TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + _t).imagine(td, pair)
-                    out["ceiling"].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
-                for name, (env_m, params) in models.items():
-                    p, _ = (env_m.imagine(td, pair, params=params) if params is not None  # [M, 2, H, 2]: the rows'
-                            else env_m.imagine(td, pair))  # mean: members, samples or quantiles
-                    out[name].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
-            td = env.step(explore_module()(td))
-            if bool(td["next", "done"]):
-                break
-            td = td["next"]
+    idx = [s - 1 for s in STEPS]
+    for td, nav, t, pair in approach_pairs(driver, town, episodes, K):
+        pos, _ = TrueDynamicsEnv(nav, samples=2, seed=t).imagine(td, pair)
+        out["true"].append((pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+        if ceiling:  # the simulator's own mean over ``ceiling`` fresh samples: what r can reach
+            p, _ = TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + t).imagine(td, pair)
+            out["ceiling"].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+        for name, (env_m, params) in models.items():
+            p, _ = (env_m.imagine(td, pair, params=params) if params is not None  # [M, 2, H, 2]: the rows'
+                    else env_m.imagine(td, pair))  # mean: members, samples or quantiles
+            out[name].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
     return {k: np.array(v) for k, v in out.items()}
 
 

@@ -83,3 +83,18 @@ def test_pernav_diagnose_model_without_a_finished_study_exit_2(tmp_path, capsys)
         torch.set_num_threads(threads)
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "holds no pernav study" in err
+
+
+@pytest.mark.slow
+def test_the_model_check_pairs_explores_next_prompts_with_the_same_prompts_later():
+    """At each approach state the diagnostic's pair is explore's next prompts now and the same DELAY s later."""
+    from pernav.diagnostics.model_check import DELAY, STEPS, approach_pairs
+    from pernav.diagnostics.panel import PANEL
+
+    pairs = list(approach_pairs(next(iter(PANEL)), "Town1", episodes=1))
+    assert pairs
+    for td, _, _, (now, later) in pairs:
+        assert len(now) == max(STEPS) and bool(now.any()) and not bool(later[:DELAY].any())
+        assert bool((later[DELAY:] == now[:-DELAY]).all())
+        future = td["explore_future"]
+        assert not bool(future[0]) and bool(future[1:5].any())  # a prompt of explore's plan due in 1-4 steps
