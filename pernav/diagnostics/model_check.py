@@ -115,23 +115,25 @@ def approach_pairs(driver: str, town: str, episodes: int = 2, K: int = 10
             td = td["next"]
 
 
+def divergence(pos: torch.Tensor) -> np.ndarray:
+    """``[len(STEPS)]``: the distance between a pair's two imagined positions ``[M, 2, H, 2]`` after each of
+    :data:`STEPS`, averaged over the rows (members, samples or quantiles)."""
+    return (pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[[s - 1 for s in STEPS]].numpy()
+
+
 def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2, K: int = 10, ceiling: int = 0
                          ) -> dict[str, np.ndarray]:
     """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's; a model is an env with
     ``imagine`` and its parameters, ``None``: its own), from the history env of window ``K``; with ``ceiling``, also
     the true simulator's mean over that many fresh samples (``"ceiling"``)."""
     out: dict[str, list] = {"true": [], **({"ceiling": []} if ceiling else {}), **{k: [] for k in models}}
-    idx = [s - 1 for s in STEPS]
     for td, nav, t, pair in approach_pairs(driver, town, episodes, K):
-        pos, _ = TrueDynamicsEnv(nav, samples=2, seed=t).imagine(td, pair)
-        out["true"].append((pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+        out["true"].append(divergence(TrueDynamicsEnv(nav, samples=2, seed=t).imagine(td, pair)[0]))
         if ceiling:  # the simulator's own mean over ``ceiling`` fresh samples: what r can reach
-            p, _ = TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + t).imagine(td, pair)
-            out["ceiling"].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+            out["ceiling"].append(divergence(TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + t).imagine(td, pair)[0]))
         for name, (env_m, params) in models.items():
-            p, _ = (env_m.imagine(td, pair, params=params) if params is not None  # [M, 2, H, 2]: the rows'
-                    else env_m.imagine(td, pair))  # mean: members, samples or quantiles
-            out[name].append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[idx].numpy())
+            p, _ = (env_m.imagine(td, pair, params=params) if params is not None else env_m.imagine(td, pair))
+            out[name].append(divergence(p))
     return {k: np.array(v) for k, v in out.items()}
 
 

@@ -2,7 +2,7 @@
 
 ``pernav diagnose model`` correlates a model's predicted "prompt now vs 3 s later" divergence with the true
 simulator's (a mean over 2 samples) at the panel drivers' approach states. This script takes the same states (the
-same episodes, seeds and pairs as ``approach_divergences``) and measures, without any study:
+same episodes, seeds and pairs: it runs ``approach_divergences`` itself) and measures, without any study:
 
 * ``ceiling``: the true simulator's mean over ``--ceiling`` (20) fresh samples against the same 2-sample truth: the
   r a perfect model of the expectation reaches (the acceptance's "ceiling");
@@ -28,8 +28,7 @@ import json
 import numpy as np
 import torch
 
-from pernav.diagnostics import TrueDynamicsEnv
-from pernav.diagnostics.model_check import DELAY, STEPS, approach_pairs, driver_env
+from pernav.diagnostics.model_check import DELAY, STEPS, approach_divergences, driver_env
 from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module
 from pernav.model.driver import DriverImaginedEnv, DriverParams
@@ -39,7 +38,6 @@ from pernav.world.drivers import Context, DriverProfile, named_user, resolve
 
 K = 10  # the diagnostic's history window for the hybrid model
 GRID = {"prepared": (0.6, 0.75, 0.85, 0.95, 1.0), "brake": (0.5, 1.0, 2.0, 3.0, 5.0), "accel": (0.5, 1.5, 3.0, 4.5)}
-IDX = [s - 1 for s in STEPS]
 
 
 def true_params(user, context: dict, cruise: float) -> DriverParams:
@@ -48,31 +46,6 @@ def true_params(user, context: dict, cruise: float) -> DriverParams:
     d = resolve(profile, Context(**context))
     return DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
                         brake=d.comfort_decel, accel=d.comfort_accel, cruise=cruise)
-
-
-def approach_states(driver: str, town: str, ceiling: int) -> list[dict]:
-    """The diagnostic's approach states of ``driver`` (:func:`approach_pairs`): each root, its pair of sequences, the
-    2-sample true divergence (as the diagnostic measures it) and (``ceiling`` > 0) the many-sample one."""
-    states = []
-    for td, nav, t, pair in approach_pairs(driver, town, K=K):
-        pos, _ = TrueDynamicsEnv(nav, samples=2, seed=t).imagine(td, pair)
-        row = {"root": td.select("history", "route_ahead", "distance_to_junction").clone(), "pair": pair,
-               "true": (pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[IDX].numpy()}
-        if ceiling:
-            p, _ = TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + t).imagine(td, pair)
-            row["ceiling"] = (p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[IDX].numpy()
-        states.append(row)
-    return states
-
-
-def predicted(params: DriverParams, states: list[dict]) -> np.ndarray:
-    """``[n, len(STEPS)]``: the hybrid model's divergence at each state (its rows' mean, as the diagnostic takes)."""
-    env = DriverImaginedEnv([params])
-    out = []
-    for s in states:
-        p, _ = env.imagine(s["root"], s["pair"])
-        out.append((p[:, 0] - p[:, 1]).norm(dim=-1).mean(0)[IDX].numpy())
-    return np.array(out)
 
 
 def figures(true: np.ndarray, pred: np.ndarray) -> dict:
@@ -97,25 +70,24 @@ def main() -> None:
     rows = {}
     for driver, (user, context) in PANEL.items():
         cruise = _cruise(drive(driver_env(driver, args.town, 7, 77, K), explore_module()))  # the diagnostic's tau
-        states = approach_states(driver, args.town, args.ceiling)
-        if not states:
-            continue
-        true = np.array([s["true"] for s in states])
         own = true_params(user, context, cruise)
-        preds = {"prior": predicted(DriverParams(), states), "true_params": predicted(own, states)}
-        if args.ceiling:
-            preds["ceiling"] = np.array([s["ceiling"] for s in states])
-        best, best_err = None, np.inf
-        for values in itertools.product(*GRID.values()):
-            params = dataclasses.replace(own, **dict(zip(GRID, values, strict=True)))
-            err = float(((predicted(params, states) - true) ** 2).mean())
-            if err < best_err:
-                best, best_err = params, err
-        preds["best_response"] = predicted(best, states)
+        # every candidate is a model of the diagnostic's own loop: the same states, seeds and truth
+        grid = [dataclasses.replace(own, **dict(zip(GRID, v, strict=True))) for v in itertools.product(*GRID.values())]
+        models = {"prior": DriverParams(), "true_params": own, **{f"grid{i}": p for i, p in enumerate(grid)}}
+        div = approach_divergences(driver, args.town, {k: (DriverImaginedEnv([p]), None) for k, p in models.items()},
+                                   K=K, ceiling=args.ceiling)
+        true = div["true"]
+        if not len(true):
+            continue
+        errors = [float(((div[f"grid{i}"] - true) ** 2).mean()) for i in range(len(grid))]
+        k = int(np.argmin(errors))  # the first of equal errors
+        best = grid[k]
+        preds = {"prior": div["prior"], "true_params": div["true_params"],
+                 **({"ceiling": div["ceiling"]} if args.ceiling else {}), "best_response": div[f"grid{k}"]}
         pooled.setdefault("true", []).append(true)
         for k, v in preds.items():
             pooled.setdefault(k, []).append(v)
-        rows[driver] = {"states": len(states), "true_mean": [round(float(x), 2) for x in true.mean(0)],
+        rows[driver] = {"states": len(true), "true_mean": [round(float(x), 2) for x in true.mean(0)],
                         "cruise": round(cruise, 2),
                         "best_response_params": {k: getattr(best, k) for k in GRID},
                         **{k: figures(true, v) for k, v in preds.items()}}
