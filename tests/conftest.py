@@ -15,23 +15,16 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 # a pool of two, tests/study/study_helpers.py) and the pool comparison (against the mini study), the recorded-drives
 # study and its resume, the sweeps of tests/world/test_acceptance.py, the development drivers of
 # tests/learners/test_belief.py (module fixtures, built again on every worker that runs one of their tests). The smoke
-# study is built first; the mini study (the pool comparison, Ray, SIGKILL) is built by the first of its checks to
-# start (the pool comparison, once the smoke study is built, while the other worker runs the recorded-drives pair: no
-# worker waits on the other's study); the checks that only read the
-# smoke study (the timing learner's, then the rest) reach a worker only once two pairs have run, so no worker waits
-# on the other's study. Ids without parameters name every case of a parametrized test.
+# study is built first, then the mini study (by the pool comparison, on the same worker); meanwhile the other worker
+# runs the pairs that need neither (the recorded drives, the sweeps, the belief's development drivers), so that the
+# checks that read the mini study (Ray, SIGKILL, a NaN loss) or the smoke study (the timing learner's) reach it once
+# it is built and no worker waits on the other's study. Ids without parameters name every case of a parametrized test.
 PAIRS = (
     ("tests/study/test_study.py::test_smoke_results_match_the_schema",
      "tests/study/test_study.py::test_a_towns_results_are_the_same_in_one_process_and_in_a_pool_of_two_workers"),
     ("tests/study/test_recorded_schedule.py::test_a_study_learns_from_recorded_and_simulated_drives",
      "tests/study/test_recorded_schedule.py::test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_"
      "same_results"),
-    ("tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[elderly_like]",
-     "tests/study/test_reliability.py::test_smoke_study_on_local_ray_equals_single_process"),
-    ("tests/world/test_acceptance.py::test_oracle_beats_explore_for_atypical_users[slow_fog_truck]",
-     "tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results"),
-    ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
-     "tests/world/test_acceptance.py::test_explore_completes_routes_with_the_average_driver"),
     ("tests/world/test_acceptance.py::test_best_lead_time_is_personal",
      "tests/world/test_acceptance.py::test_too_late_misses_and_too_early_goes_wrong"),
     ("tests/learners/test_belief.py::test_a_late_answering_driver_gets_a_later_belief_and_earlier_prompts_a_quick_one_"
@@ -40,8 +33,12 @@ PAIRS = (
     ("tests/learners/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
      "follow",
      "tests/learners/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
-    ("tests/world/test_acceptance.py::test_too_late_swerves_strike_for_truck_and_fast_keyboard",
+    ("tests/study/test_reliability.py::test_smoke_study_on_local_ray_equals_single_process",
+     "tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results"),
+    ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
      "tests/study/test_reliability.py::test_nan_loss_is_skipped_and_the_study_finishes"),
+    ("tests/world/test_acceptance.py::test_too_late_swerves_strike_for_truck_and_fast_keyboard",
+     "tests/play/test_play.py::test_bench_play_reports_frame_times"),
 )
 
 
@@ -49,8 +46,9 @@ def pytest_collection_modifyitems(config, items):
     """The tests of :data:`PAIRS` first, in that order, then the other tests marked ``slow``, then the rest, so
     that under ``pytest -n 2 --dist load --maxschedchunk 2`` (``make test``) the long checks start early on both
     workers and the short ones fill in around them, instead of a long check starting last while the other worker
-    idles. The other slow tests of the folders whose checks take longest come first, taken in turn from each
-    folder."""
+    idles. The other slow tests of the folders whose checks take longest come first, a module at a time from each
+    folder in turn: a module's tests stay together, so that its module fixtures are built once per worker instead
+    of again each time the order comes back to it."""
     order = ("study", "world", "play")
     first = [nodeid for pair in PAIRS for nodeid in pair]
 
@@ -66,7 +64,13 @@ def pytest_collection_modifyitems(config, items):
         return len(first)
 
     slow = [item for item in items if item.get_closest_marker("slow") is not None]
-    folders = [[item for item in slow if folder(item) == k] for k in range(len(order) + 1)]
-    turns = [tests[i] for i in range(max(map(len, folders), default=0)) for tests in folders if i < len(tests)]
+    modules: list[list[list]] = [[] for _ in range(len(order) + 1)]  # per folder, its modules' slow tests
+    for item in slow:
+        in_folder = modules[folder(item)]
+        if not in_folder or in_folder[-1][0].path != item.path:
+            in_folder.append([])
+        in_folder[-1].append(item)
+    turns = [item for i in range(max(map(len, modules), default=0)) for in_folder in modules if i < len(in_folder)
+             for item in in_folder[i]]
     turns.sort(key=rank)  # stable: the slow tests not in PAIRS keep their turns
     items[:] = turns + [item for item in items if item.get_closest_marker("slow") is None]

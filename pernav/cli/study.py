@@ -53,6 +53,9 @@ def add_parser(sub: Any) -> None:
                         "retimed (explore with prompts re-timed at random, so tau shows the driver's timing)")
     p.add_argument("--calibration", type=int, metavar="N",
                    help="re-timed drives of each online round's user before its evaluation (default: the preset's)")
+    p.add_argument("--time-limit-factor", dest="time_limit_factor", type=float, metavar="F",
+                   help="cut every episode after F x the route's nominal time + 30 s (default: the env's limit, "
+                        "2.0): quick checks of the machinery, not figures")
     p.add_argument("--resume", action="store_true", help="continue an interrupted study in --out")
     p.add_argument("--workers", type=int, default=1, help="parallel processes (towns run independently)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
@@ -90,6 +93,8 @@ def run(args: argparse.Namespace) -> None:
         cfg.tau_policy = args.tau_policy
     if args.calibration is not None:
         cfg.calibration = args.calibration
+    if args.time_limit_factor is not None:
+        cfg.time_limit_factor = args.time_limit_factor
     try:
         cfg.train = cfg.train.with_options(args.train_option)
     except ValueError as exc:

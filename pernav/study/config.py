@@ -101,12 +101,25 @@ class StudyConfig:
     # re-timed drives (RetimedExplore) of each online round's user before its evaluation, beside tau: data of
     # this user's answers to a prompt's timing (train.personal_updates adapts on them; 0: none, the paper)
     calibration: int = 0
+    # every episode the study drives is cut after this factor x the route's nominal time + 30 s (None: the env's own
+    # limit, pernav.env.navigation's time_limit_factor, 2.0). For quick checks of the machinery (the test suite's
+    # studies cut it to 0.3): a cut episode is not a whole drive, so its figures are not the study's
+    time_limit_factor: float | None = None
     timing: dict[str, Any] = field(default_factory=lambda: dict(TIMING_DEFAULTS))  # the timing learner's options
     belief: dict[str, Any] = field(default_factory=lambda: dict(BELIEF_DEFAULTS))  # the belief learner's options
     seed: int = 0
 
     def entries_for(self, town: str) -> list[Entry]:
         return [e for e in self.schedule if e.runs_in(town)]
+
+    def world_config(self) -> dict[str, Any]:
+        """The navigation env's options that the study sets for every episode it drives (traffic, time limit).
+
+        >>> StudyConfig("smoke", ["Town1"], [], n_traffic=2, time_limit_factor=0.3).world_config()
+        {'n_traffic': 2, 'time_limit_factor': 0.3}
+        """
+        limit = {} if self.time_limit_factor is None else {"time_limit_factor": self.time_limit_factor}
+        return {"n_traffic": self.n_traffic, **limit}
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
@@ -131,6 +144,9 @@ class StudyConfig:
             raise PresetError(f"routes must be in [1, 10], got {self.routes}")
         if self.rollouts < 0 or self.offline_trajectories < 1:
             raise PresetError("rollouts must be >= 0 and offline_trajectories >= 1")
+        if self.time_limit_factor is not None and not self.time_limit_factor > 0:
+            raise PresetError(f"time_limit_factor must be > 0 or null (the env's own limit), got "
+                              f"{self.time_limit_factor}")
         if self.calibration < 0 or self.train.personal_updates < 0:
             raise PresetError(f"calibration and train.personal_updates must be >= 0, got {self.calibration} and "
                               f"{self.train.personal_updates}")

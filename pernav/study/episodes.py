@@ -35,7 +35,7 @@ def study_env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, 
               belief: dict[str, float] | None = None) -> Any:
     """The history-windowed TorchRL env of a study's cell: ``entry``'s user on ``route`` of ``town``, the study's
     traffic and planning context, and the env's ``belief`` about the user where a method reads one."""
-    config = {"n_traffic": cfg.n_traffic, "adaptive_speed": n_actions == N_ADAPTIVE_ACTIONS,
+    config = {**cfg.world_config(), "adaptive_speed": n_actions == N_ADAPTIVE_ACTIONS,
               **env_planning_config(cfg.planner)}
     if belief is not None:
         config["belief"] = belief

@@ -473,7 +473,7 @@ def _labelled(cfg: StudyConfig, town: str) -> list[Any]:
     drive one explore route of ``town``, each heard prompt's answer window labelled with the moment it took effect
     (known: they are simulated)."""
     return labelled_drives(town, int(cfg.belief["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
-                           derive_seed(cfg.seed, town, "belief", "routes"), {"n_traffic": cfg.n_traffic}, progress=True)
+                           derive_seed(cfg.seed, town, "belief", "routes"), cfg.world_config(), progress=True)
 
 
 def _fit_belief(cfg: StudyConfig, drives: list[Any]) -> dict[str, Any]:

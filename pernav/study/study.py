@@ -40,7 +40,8 @@ def _fingerprint(cfg: StudyConfig) -> dict[str, Any]:
 # whose default changed what an older study did) makes the folder a different study.
 ADDED_OPTIONS: dict[str, Any] = {"collect": "explore", "tau_policy": "explore", "calibration": 0, "train.ensemble": 1,
                                  "train.personal_updates": 0, "train.personal_replay": 0.0, "train.road": 0,
-                                 "train.context": 0, "timing": TIMING_DEFAULTS, "belief": BELIEF_DEFAULTS}
+                                 "train.context": 0, "timing": TIMING_DEFAULTS, "belief": BELIEF_DEFAULTS,
+                                 "time_limit_factor": None}
 
 
 def _difference(saved: dict[str, Any], current: dict[str, Any], prefix: str = "") -> str | None:

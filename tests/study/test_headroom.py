@@ -63,6 +63,7 @@ def test_analytic_lateness_agrees_with_sampled_reaction_times() -> None:
 # ----- the timing learner ----------------------------------------------------------------------------------------
 import pytest  # noqa: E402
 import torch  # noqa: E402
+from navigation_helpers import shared_value  # noqa: E402
 
 from pernav.env.policies import belief_policy  # noqa: E402
 from pernav.env.torchrl_env import explore_module  # noqa: E402
@@ -77,9 +78,7 @@ def _tau(user, context: Context, route: int, seed: int):
     return drive(env, explore_module())
 
 
-@pytest.fixture(scope="module")
-def fitted() -> TimingModel:
-    """A timing model fitted as the study fits it, on 16 simulated population drivers' explore drives."""
+def _fit_timing() -> TimingModel:
     population, X, Y = Population(seed=7), [], []
     for k in range(16):
         profile, context = population.sample()
@@ -87,6 +86,13 @@ def fitted() -> TimingModel:
         driver = resolve(profile, context)
         Y.append(torch.tensor([driver.reaction_time, driver.decision_time]))
     return TimingModel().fit(torch.stack(X), torch.stack(Y))
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory) -> TimingModel:
+    """A timing model fitted as the study fits it, on 16 simulated population drivers' explore drives (built once
+    for both pytest workers)."""
+    return shared_value(tmp_path_factory, "headroom_timing_model", _fit_timing)
 
 
 def test_ridge_recovers_a_linear_relation_and_shrinks_to_the_mean_without_evidence() -> None:
