@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-from navigation_helpers import shared_folder
+from navigation_helpers import TIME_LIMIT, shared_folder
 
 from pernav.world.controls import ControlInput
 
@@ -20,8 +20,8 @@ K = 3  # nor is this history window
 
 
 def model_study(tmp_path_factory) -> Path:
-    """A finished study in seconds: smoke's model, one offline and one online round, adapt and adapt_speed, U on
-    tau, with :data:`PLANNER` and a history window of :data:`K` (built once per test session)."""
+    """A finished study in seconds (episodes cut at TIME_LIMIT): smoke's model, one offline and one online round,
+    adapt and adapt_speed, U on tau, with :data:`PLANNER` and a history window of :data:`K` (built once per test session)."""
 
     def build(out: Path) -> None:
         from pernav.study import preset, run_study
@@ -29,7 +29,7 @@ def model_study(tmp_path_factory) -> Path:
         cfg = preset("smoke")
         cfg.methods, cfg.schedule, cfg.calibration = ["adapt", "adapt_speed"], cfg.schedule[:2], 0
         cfg.train.personal_updates, cfg.train.K, cfg.train.warm_updates = 0, K, 10
-        cfg.planner = dict(PLANNER)
+        cfg.planner, cfg.time_limit_factor = dict(PLANNER), TIME_LIMIT
         run_study(cfg, out, report=False)
 
     return shared_folder(tmp_path_factory, "play_model_study", build)
@@ -44,6 +44,7 @@ def retimed_study(tmp_path_factory) -> Path:
 
         cfg = preset("smoke")
         cfg.methods, cfg.schedule, cfg.calibration = ["explore", "timing", "belief"], cfg.schedule[:2], 0
+        cfg.time_limit_factor = TIME_LIMIT
         run_study(cfg, out, report=False)
 
     return shared_folder(tmp_path_factory, "play_retimed_study", build)
@@ -99,7 +100,7 @@ def lab_study(tmp_path_factory) -> Path:
 
         cfg = preset("smoke")
         cfg.methods, cfg.schedule, cfg.calibration = ["explore", "adapt", "belief"], cfg.schedule[:2], 0
-        cfg.train.warm_updates = 10
+        cfg.train.warm_updates, cfg.time_limit_factor = 10, TIME_LIMIT
         run_study(cfg, out, report=False)
 
     return shared_folder(tmp_path_factory, "play_lab_study", build)

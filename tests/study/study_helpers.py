@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from navigation_helpers import shared_folder
+from navigation_helpers import TIME_LIMIT, shared_folder
 
 
 def kill_then_resume(cmd: list[str], out: Path, town: str, index: int, timeout: float = 300.0) -> dict:
@@ -56,11 +56,6 @@ def shared_study(tmp_path_factory, name: str, cfg: Any = None, workers: int = 1)
     return shared_folder(tmp_path_factory, name, build)
 
 
-# the test suite's studies cut every episode at 0.3 x the route's nominal time + 30 s (about 70 s of Town1's 150 s
-# routes; StudyConfig.time_limit_factor): what they check (the schema, a resume, a pool, Ray, recorded drives) does
-# not depend on whole drives, and their episodes are most of their time
-QUICK = 0.3
-
 # the mini study: the smoke preset's first two rounds (offline, then one online round: a checkpoint to resume from
 # and an evaluation after it) with explore, the two model learners (sysid, adapt: their buffers, ensembles and
 # meta-learner state are what a resume must restore) and adapt_driver (its meta model, evidence and estimates): about
@@ -71,14 +66,14 @@ MINI_ROUNDS = 2
 
 def mini_config() -> Any:
     """The mini study's configuration (the methods in the order ``pernav study --methods`` gives them; episodes cut at
-    :data:`QUICK`)."""
+    :data:`TIME_LIMIT`)."""
     from pernav.study import preset
     from pernav.study.config import METHODS
 
     cfg = preset("smoke")
     cfg.methods = [m for m in METHODS if m in MINI_METHODS]
     cfg.schedule = cfg.schedule[:MINI_ROUNDS]
-    cfg.time_limit_factor = QUICK
+    cfg.time_limit_factor = TIME_LIMIT
     return cfg
 
 
@@ -88,7 +83,7 @@ def mini_arguments(folder: Path) -> list[str]:
     schedule.write_text(json.dumps([{k: v for k, v in e.to_dict().items() if v is not None}
                                     for e in mini_config().schedule]))
     return ["--preset", "smoke", "--methods", *MINI_METHODS, "--schedule", str(schedule), "--time-limit-factor",
-            str(QUICK)]
+            str(TIME_LIMIT)]
 
 
 def mini_study(tmp_path_factory) -> Path:
@@ -102,14 +97,14 @@ def mini_reference(tmp_path_factory) -> dict:
 
 
 def two_towns() -> Any:
-    """The smoke study (episodes cut at :data:`QUICK`) of Town1 and Town2, Town2 without the last round: Town1 the
+    """The smoke study (episodes cut at :data:`TIME_LIMIT`) of Town1 and Town2, Town2 without the last round: Town1 the
     whole smoke study, Town2 (its offline round and an online one, every method) the town beside it."""
     import dataclasses
 
     from pernav.study import preset
 
     cfg = preset("smoke")
-    cfg.towns, cfg.time_limit_factor = ["Town1", "Town2"], QUICK
+    cfg.towns, cfg.time_limit_factor = ["Town1", "Town2"], TIME_LIMIT
     *rounds, last = cfg.schedule
     cfg.schedule = [*rounds, dataclasses.replace(last, towns=("Town1",))]
     return cfg

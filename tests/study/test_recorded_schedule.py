@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from navigation_helpers import shared_folder
-from study_helpers import QUICK, kill_then_resume
+from navigation_helpers import TIME_LIMIT, shared_folder
+from study_helpers import kill_then_resume
 
 from pernav.cli import main
 from pernav.play.loop import PlaySession
@@ -71,13 +71,13 @@ def test_drives_resolve_relative_to_the_schedule_file_in_order(drives):
 
 @pytest.fixture(scope="module")
 def mixed_study(tmp_path_factory) -> Path:
-    """The smoke study of the MIXED schedule (recorded and simulated rounds; episodes cut at QUICK), run once per test
+    """The smoke study of the MIXED schedule (recorded and simulated rounds; episodes cut at TIME_LIMIT), run once per test
     session for the tests below (on its own copy of the drives, which are the same: the bot and the world are seeded)."""
 
     def build(folder: Path) -> None:
         schedule = _schedule(_record_drives(folder), MIXED)
         assert main(["study", "--preset", "smoke", "--out", str(folder / "study"), "--schedule", str(schedule),
-                     "--methods", *METHODS, "--time-limit-factor", str(QUICK)]) == 0
+                     "--methods", *METHODS, "--time-limit-factor", str(TIME_LIMIT)]) == 0
 
     return shared_folder(tmp_path_factory, "mixed_study", build) / "study"
 
@@ -120,7 +120,7 @@ def test_a_study_with_recorded_drives_killed_after_a_person_resumes_to_the_same_
     simulated rounds after it give what the uninterrupted study gave."""
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "pernav.cli", "study", "--preset", "smoke", "--out", str(out), "--schedule",
-           str(_schedule(drives, MIXED)), "--methods", *METHODS, "--time-limit-factor", str(QUICK)]
+           str(_schedule(drives, MIXED)), "--methods", *METHODS, "--time-limit-factor", str(TIME_LIMIT)]
     got = kill_then_resume(cmd, out, "Town1", index=1)  # entry 1 is "Person warm-up" (recorded, offline)
     reference = json.loads((mixed_study / "results.json").read_text())
     for it_got, it_ref in zip(got["iterations"], reference["iterations"], strict=True):
