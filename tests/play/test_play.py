@@ -223,9 +223,13 @@ def test_nothing_below_play_imports_it():
 def test_bench_play_reports_frame_times(monkeypatch):
     """``pernav bench play`` measures the loop (no timing is asserted here: the target is checked by the bench)."""
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    from pernav.cli import bench
     from pernav.cli.bench import bench_play
 
+    # two of the six views (a clear one and a foggy one: each view is one more drive of the same loop)
+    monkeypatch.setattr(bench, "PLAY_VIEWS", (("first_person", "normal"), ("top", "foggy")))
     out = bench_play(quick=True)
+    assert out["slowest_view"] in ("first_person", "top_fog") and "third_person_frame_ms_median" not in out
     assert out["world_frames"] > 100 and 0 < out["frame_ms_median"] <= out["frame_ms_p95"]
     assert 0 < out["frame_without_drawing_ms_median"] and out["drawn_vs_bare_median_ratio"] > 1
 
