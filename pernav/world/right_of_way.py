@@ -21,8 +21,12 @@ class RightOfWay:
         self.world_cars: list = []  # the cars of the current frame (set by World.frame)
 
     def release_stale(self, cars: list[Vehicle]) -> None:
-        alive = {id(c): c for c in cars}
+        alive = None
         for jid, holders in self.holders.items():
+            if not holders:  # most junctions are free: nothing to release (nor to look up)
+                continue
+            if alive is None:
+                alive = {id(c): c for c in cars}
             for key in list(holders):
                 car = alive.get(key)
                 if car is None or not self._involved(car, jid):

@@ -64,6 +64,27 @@ def _path_ahead(town: Town, path: tuple[LaneIndex, ...]) -> tuple[dict, list[flo
     return hit
 
 
+def _stop_plan(town: Town, path: tuple[LaneIndex, ...]) -> tuple[float, list[float], tuple | None]:
+    """For a car's next lanes ``path`` (at most four), what :meth:`World.stop_line` walks through: the first lane's
+    length, the lengths it adds before the first lane that enters a junction, and that entry (junction id, the
+    node it is entered from, the entering lane) or None. Fixed per town and path (lanes never change), so cached
+    on the town."""
+    cache = town.__dict__.setdefault("_stop_plan_cache", {})
+    hit = cache.get(path)
+    if hit is None:
+        lengths: list[float] = []
+        entry = None
+        for i in range(1, len(path)):
+            prev, lane = path[i - 1], path[i]
+            jid = town.lane_junction.get(lane)
+            if jid is not None and town.lane_junction.get(prev) is None:
+                entry = (jid, prev[1], lane)
+                break
+            lengths.append(town.lane(lane).length)
+        hit = cache[path] = (town.lane(path[0]).length, lengths, entry)
+    return hit
+
+
 class World:
     """A town, a driver's car on a route, traffic around it, right-of-way and event counters."""
 
@@ -202,22 +223,30 @@ class World:
     def leader_of(self, car: PathCar) -> tuple[Vehicle | None, float]:
         """Nearest car ahead: on the car's own lane path, or in its corridor straight ahead."""
         best, best_gap = None, np.inf
-        ahead, starts, siblings = _path_ahead(self.town, tuple(car.path[:4]))
-        h = car.direction
-        hx, hy = h.tolist()
-        # positions as Python floats: the same IEEE differences as numpy's, without a numpy scalar per operation
+        ahead = None  # the car's path ahead and heading: worked out at the first car within 60 m (often none is)
+        # positions as Python floats: the same IEEE differences as numpy's, without a numpy scalar per operation;
+        # within frame()'s act loop (nobody moves there) every car's are read once per frame, not once per pair
         px, py = car.position.tolist()
-        for other in self.cars:
+        positions = self._act_positions
+        if positions is None:
+            positions = [(other, *other.position.tolist()) for other in self.cars]
+        for other, ox, oy in positions:
             if other is car:
                 continue
-            ox, oy = other.position.tolist()
             rx, ry = ox - px, oy - py  # the components of ``other.position - car.position``, to the bit
-            if abs(rx) > 60.0 or abs(ry) > 60.0:  # hypot >= either leg: surely beyond 60 m
+            # abs(rx) > 60.0 or abs(ry) > 60.0 (hypot >= either leg: surely beyond 60 m), without calling abs
+            if rx > 60.0 or rx < -60.0 or ry > 60.0 or ry < -60.0:
                 continue
-            rel = other.position - car.position
-            dist = float(np.hypot(rx, ry))
-            if dist > 60.0:
+            # ``np.hypot(rx, ry) > 60`` decided from the squared length where it is clearly on one side of 3600
+            # (its rounding errors are ~1e-13 here, libm's hypot is within an ulp); np.hypot itself near the edge
+            # and for NaN (which passes, as before)
+            sq = rx * rx + ry * ry
+            if sq > 3601.0 or (not sq < 3599.0 and float(np.hypot(rx, ry)) > 60.0):
                 continue
+            if ahead is None:
+                ahead, starts, siblings = _path_ahead(self.town, tuple(car.path[:4]))
+                h = car.direction
+                hx, hy = h.tolist()
             half = (car.LENGTH + other.LENGTH) / 2
             k = ahead.get(other.path[0])
             if k is None and other.s < 15.0:
@@ -227,14 +256,18 @@ class World:
                 along = starts[k] + other.s - car.s
                 if along > 0:
                     gap = along - half
-            lon = float(np.dot(rel, h))
-            if 0 < lon < 35.0:  # the lateral offset and the other's heading only matter in this range
-                lat = abs(rx * hy - ry * hx)
-                # the corridor catches crossing and same-way cars; an oncoming car (waiting at the stop
-                # line of the arm a turning car leaves by) is in the other lane, not in the way
-                oncoming = float(np.dot(other.direction, h)) < -0.5
-                if lat < (car.WIDTH + other.WIDTH) / 2 + 0.4 and not oncoming:
-                    gap = min(gap, lon - half)
+            # lon = ``np.dot(rel, h)`` only matters in (0, 35); the plain sum of products is within 1e-12 of it
+            # here (|rel| <= 60 m, |h| = 1), so a car clearly outside that range is passed over without it
+            # (NaN compares false both ways, as lon would)
+            if -1e-9 < rx * hx + ry * hy < 35.0 + 1e-9:
+                lon = float(np.dot(other.position - car.position, h))
+                if 0 < lon < 35.0:  # the lateral offset and the other's heading only matter in this range
+                    lat = abs(rx * hy - ry * hx)
+                    # the corridor catches crossing and same-way cars; an oncoming car (waiting at the stop
+                    # line of the arm a turning car leaves by) is in the other lane, not in the way
+                    oncoming = float(np.dot(other.direction, h)) < -0.5
+                    if lat < (car.WIDTH + other.WIDTH) / 2 + 0.4 and not oncoming:
+                        gap = min(gap, lon - half)
             if gap < best_gap:
                 best, best_gap = other, gap
         return best, best_gap
@@ -242,36 +275,43 @@ class World:
     def stop_line(self, car: PathCar) -> float | None:
         """Distance to a stop line the car must respect (junction held by another arm, or ring
         traffic at a roundabout entry), or None."""
-        town = self.town
-        d = town.lane(car.path[0]).length - car.s
-        for i in range(1, min(len(car.path), 4)):
-            prev, lane = car.path[i - 1], car.path[i]
-            jid = town.lane_junction.get(lane)
-            if jid is not None and town.lane_junction.get(prev) is None:
-                if d > 35.0:
-                    return None
-                j = town.junctions[jid]
-                arm = prev[1].split(":i")[1]
-                if j.kind == "roundabout":
-                    entry_len = town.lane(lane).length
-                    if not self.right_of_way.ring_clear(car, jid, arm):
-                        return max(d + entry_len - 3.0, 0.1)
-                    return None
-                if not j.is_decision:
-                    return None
-                if not self.right_of_way.may_enter_cross(car, jid, arm):
-                    return max(d - 1.0, 0.1)
-                return None
-            d += town.lane(lane).length
+        first, lengths, entry = _stop_plan(self.town, tuple(car.path[:4]))
+        if entry is None:  # no junction entered within the next lanes
+            return None
+        d = first - car.s
+        for length in lengths:  # the same sum, lane by lane, as walking the path
+            d += length
+        jid, node, lane = entry
+        if d > 35.0:
+            return None
+        j = self.town.junctions[jid]
+        arm = node.split(":i")[1]
+        if j.kind == "roundabout":
+            entry_len = self.town.lane(lane).length
+            if not self.right_of_way.ring_clear(car, jid, arm):
+                return max(d + entry_len - 3.0, 0.1)
+            return None
+        if not j.is_decision:
+            return None
+        if not self.right_of_way.may_enter_cross(car, jid, arm):
+            return max(d - 1.0, 0.1)
         return None
 
     # ----- simulation -------------------------------------------------------------------------
+    _act_positions: list | None = None  # (car, x, y) of every car while frame() runs their act()
+
     def frame(self) -> None:
         """One simulation frame: decisions, dynamics, collisions and curb strikes."""
         self.right_of_way.world_cars = self.cars
         self.right_of_way.release_stale(self.cars)
-        for car in self.cars:
-            car.act()
+        # acting changes no car's position and adds or removes no car (that happens in step() and
+        # maintain_traffic()), so leader_of() may read the positions taken here for the whole loop
+        self._act_positions = [(car, *car.position.tolist()) for car in self.cars]
+        try:
+            for car in self.cars:
+                car.act()
+        finally:
+            self._act_positions = None
         for car in self.cars:
             car.step(self.dt)
         self.time += self.dt
@@ -280,31 +320,35 @@ class World:
 
     def _collisions(self) -> None:
         cars = self.cars
-        pos = np.array([c.position for c in cars])
         ego = self.ego
-        # every pair's centre distance in one pass (pairs i < j in row-major order, as a loop over i would;
-        # skipping i >= j here is what np.triu did, without building a mask each frame)
-        near = np.sqrt(((pos[:, None, :] - pos[None, :, :]) ** 2).sum(-1)) < 6.5
-        rows, cols = np.nonzero(near)
-        for i, j in zip(rows.tolist(), cols.tolist(), strict=True):
-            if i >= j:
-                continue
-            a, b = cars[i], cars[j]
-            if not utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2), np.zeros(2))[0]:
+        # pairs i < j in row-major order whose centres are under 6.5 m apart. The test is numpy's
+        # ``np.sqrt(((pos[:, None] - pos[None]) ** 2).sum(-1)) < 6.5`` on Python floats: the same difference,
+        # squares (``** 2`` is a multiplication) and one sum of two terms, then np.sqrt; a pair more than 7 m
+        # apart on either axis (abs(dx) > 7.0, written without abs) is skipped first: its square alone is >= 49,
+        # so the root is >= 7 > 6.5
+        xy = [c.position.tolist() for c in cars]
+        for i, (xi, yi) in enumerate(xy):
+            for j in range(i + 1, len(xy)):
+                xj, yj = xy[j]
+                dx, dy = xi - xj, yi - yj
+                if dx > 7.0 or dx < -7.0 or dy > 7.0 or dy < -7.0 or not np.sqrt(dx * dx + dy * dy) < 6.5:
+                    continue
+                a, b = cars[i], cars[j]
+                if not utils.are_polygons_intersecting(a.polygon(), b.polygon(), np.zeros(2), np.zeros(2))[0]:
+                    if ego in (a, b):
+                        ego.in_contact.discard(id(b if a is ego else a))
+                    continue
                 if ego in (a, b):
-                    ego.in_contact.discard(id(b if a is ego else a))
-                continue
-            if ego in (a, b):
-                other = b if a is ego else a
-                if id(other) not in ego.in_contact:
-                    ego.in_contact.add(id(other))
-                    self.events.vehicle_collisions += 1
-                    self.events.log.append(("collision", round(self.time, 1)))
-                    ego.speed *= 0.3
-                    other.crashed = True
-            elif not (a.crashed and b.crashed):
-                self.events.traffic_collisions += 1
-                a.crashed = b.crashed = True
+                    other = b if a is ego else a
+                    if id(other) not in ego.in_contact:
+                        ego.in_contact.add(id(other))
+                        self.events.vehicle_collisions += 1
+                        self.events.log.append(("collision", round(self.time, 1)))
+                        ego.speed *= 0.3
+                        other.crashed = True
+                elif not (a.crashed and b.crashed):
+                    self.events.traffic_collisions += 1
+                    a.crashed = b.crashed = True
 
     def _curb(self) -> None:
         ego = self.ego
@@ -323,7 +367,7 @@ class World:
         are kerbs, which a car cutting a turn short, or running wide out of it, mounts."""
         grid = self.town.lane_grid
         inside = LANE_WIDTH / 2 - car.WIDTH / 2 + 0.75  # centre this close to a lane: sides on it
-        if grid.distance_to_road(car.position) <= inside:
+        if grid.within(car.position, inside):  # distance_to_road(car.position) <= inside
             return False
         edge = LANE_WIDTH / 2 + (self.BOX_PAVING if self._in_box(car.position, 2.0) else 0.0)
         h = car.heading

@@ -13,10 +13,20 @@ if TYPE_CHECKING:
     from pernav.world.simulation import World
 
 
+_IDM_ROOTS: dict[float, np.float64] = {}
+
+
 def idm_acceleration(speed: float, desired: float, gap: float, closing: float, headway: float,
                      a_max: float, b: float) -> float:
     """Intelligent Driver Model (Treiber) acceleration towards a leader ``gap`` metres ahead."""
-    s_star = 2.0 + speed * headway + speed * closing / (2.0 * np.sqrt(a_max * b))
+    ab = a_max * b
+    # np.sqrt(a_max * b) remembered per product (a few driver and traffic constants): the same np.float64
+    root = _IDM_ROOTS.get(ab) if type(ab) is float and ab > 0.0 else None  # not for zeros (signed) or NaN
+    if root is None:
+        root = np.sqrt(ab)
+        if type(ab) is float and ab > 0.0 and len(_IDM_ROOTS) < 256:
+            _IDM_ROOTS[ab] = root
+    s_star = 2.0 + speed * headway + speed * closing / (2.0 * root)
     free = 1.0 - (speed / max(desired, 0.1)) ** 4
     return a_max * (free - (max(s_star, 0.0) / max(gap, 0.1)) ** 2)
 
@@ -66,8 +76,10 @@ class PathCar:
         h = self.heading
         hit = self.__dict__.get("_direction_hit")
         # by identity: floats are immutable, so the same object is the same heading to the bit (the cache holds
-        # on to it, so a new heading is always a new object); anything but a float is not cached
-        if hit is not None and hit[0] is h:
+        # on to it, so a new heading is always a new object); anything but a float is not cached. Or by an equal
+        # value (a car driving straight on gets a new heading object of the same value each frame), but not for
+        # zero, where 0.0 == -0.0 and sin(-0.0) is -0.0 (NaN equals nothing)
+        if hit is not None and (hit[0] is h or (isinstance(h, float) and hit[0] == h and h != 0.0)):
             return hit[1]
         d = np.array([np.cos(h), np.sin(h)])
         if isinstance(h, float):  # a Python or numpy float (np.float64 is one)
