@@ -31,10 +31,10 @@ def seeded_model(seed: int, n_actions: int = 7, K: int = 5, hidden: tuple[int, .
     return DynamicsModel(n_actions=n_actions, K=K, hidden=hidden)
 
 
-# the test suite's studies cut every episode at 0.3 x the route's nominal time + 30 s (about 70 s of Town1's 150 s
+# the test suite's studies cut every episode at 0.15 x the route's nominal time + 30 s (about 50 s of Town1's 150 s
 # routes; StudyConfig.time_limit_factor): what they check (the schema, a resume, a pool, Ray, recorded drives, the
 # policies a finished study hands out) does not depend on whole drives, and their episodes are most of their time
-TIME_LIMIT = 0.3
+TIME_LIMIT = 0.15
 
 
 def shared_folder(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:

@@ -103,7 +103,7 @@ class StudyConfig:
     calibration: int = 0
     # every episode the study drives is cut after this factor x the route's nominal time + 30 s (None: the env's own
     # limit, pernav.env.navigation's time_limit_factor, 2.0). For quick checks of the machinery (the test suite's
-    # studies cut it to 0.3): a cut episode is not a whole drive, so its figures are not the study's
+    # studies cut it to 0.15): a cut episode is not a whole drive, so its figures are not the study's
     time_limit_factor: float | None = None
     timing: dict[str, Any] = field(default_factory=lambda: dict(TIMING_DEFAULTS))  # the timing learner's options
     belief: dict[str, Any] = field(default_factory=lambda: dict(BELIEF_DEFAULTS))  # the belief learner's options

@@ -364,7 +364,7 @@ def test_delta_layouts_refuse_what_they_cannot_read() -> None:
 
 
 @pytest.mark.slow
-def test_cartpole_recipe_end_to_end(tmp_path: Path) -> None:
+def test_cartpole_recipe_end_to_end(tmp_path: Path, capsys) -> None:
     out = tmp_path / "run"
     small = ["--seeds", "0", "--offline", "2", "--offline-episodes", "2", "--online", "2", "--episodes", "1",
              "--max-steps", "40", "--horizon", "3", "--warm-updates", "20", "--offline-updates", "10",
@@ -376,8 +376,13 @@ def test_cartpole_recipe_end_to_end(tmp_path: Path) -> None:
     for method, rounds in results.items():
         assert len(rounds) == 2 and all(0.0 <= r <= 40.0 for episodes in rounds for r in episodes), method
     assert (out / "returns.png").stat().st_size > 1000 and "adapt - sysid" in (out / "summary.md").read_text()
-    again = subprocess.run([sys.executable, str(RECIPE), str(out), *small], capture_output=True, text=True)
-    assert again.returncode == 2 and "exists" in again.stderr and "Traceback" not in again.stderr
+    # run again into the same folder: refused, nothing overwritten (in this process: no second start-up)
+    from recipes.cartpole_meta import main as recipe
+
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert recipe([str(out), *small]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
 
 
 def test_imagined_env_passes_check_env_specs_and_stops_rewarding_after_done() -> None:
