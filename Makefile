@@ -26,17 +26,18 @@ $(STAMP): pyproject.toml
 study: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/pernav study --preset default --out $(OUT) --workers 2 --resume
 
-# every test and every module's doctests (12.5 minutes from a fresh clone on the 2-core development machine; the target is 7). One torch thread per pytest worker:
+# every test and every module's doctests (8 minutes from a fresh clone on the 2-core development machine, of which 45 s
+# set-up; the target is 7). One torch thread per pytest worker:
 # two workers on two cores, instead of torch's default of one thread per core in each
 test: $(STAMP)
 	OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist load --maxschedchunk 2 --doctest-modules tests pernav
 
-# the inner loop: everything but the tests marked slow (80 s on the 2-core development machine; the target is 90 s)
+# the inner loop: everything but the tests marked slow (75 s on the 2-core development machine; the target is 90 s)
 test-fast: $(STAMP)
 	OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 --dist loadfile -m "not slow" --doctest-modules tests pernav
 
 # the frozen world's claims that take dozens of whole episodes (recipes/claims: explore completes its routes, the oracle
-# beats it for atypical users; about 4 CPU-minutes). CI runs them after `make test`; run them after any change to
+# beats it for atypical users; 2 min, 3.2 CPU-minutes). CI runs them after `make test`; run them after any change to
 # pernav/world
 claims: $(STAMP)
 	OMP_NUM_THREADS=1 OMP_WAIT_POLICY=PASSIVE $(BIN)/python -m pytest -q -n 2 recipes/claims

@@ -1,4 +1,4 @@
-"""The frozen world's claims that take dozens of whole episodes to check (about 4 CPU-minutes): explore is a strong
+"""The frozen world's claims that take dozens of whole episodes to check (about 3 CPU-minutes): explore is a strong
 baseline, and the oracle beats it for the atypical users of docs/simulator.md.
 
 Run by ``make claims`` and by CI after ``make test`` (``.ci/run``); ``make test`` keeps the world's quick checks

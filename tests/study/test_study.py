@@ -295,3 +295,22 @@ def test_every_yaml_preset_loads_validates_and_inherits_its_base(tmp_path, monke
     monkeypatch.setattr(config, "PRESETS", ("odd",))
     with pytest.raises(config.PresetError, match="schedule must be one of"):
         config.preset("odd")
+
+
+def test_time_limit_factor_cuts_every_episode_and_a_bad_one_is_refused(tmp_path, capsys):
+    from pernav.env.torchrl_env import explore_module
+    from pernav.study.episodes import study_env
+    from pernav.trainer.collect import drive
+    from pernav.world.towns import get_town
+
+    cfg = preset("smoke")
+    cfg.time_limit_factor = 0.1
+    limit = 0.1 * get_town("Town1").routes[0].length / 10.0 + 30.0  # the env's nominal speed: 10 m/s
+    cut = drive(study_env(cfg, "Town1", cfg.schedule[0], 0, 0), explore_module())
+    assert cut.shape[0] <= limit + 1 and not bool(cut[-1]["next", "completed"])
+    assert bool(cut[-1]["next", "truncated"])  # cut by the time limit, not ended by arrival
+    for bad in ("0", "-1", "nan"):
+        out = tmp_path / f"s{bad}"
+        assert main(["study", "--preset", "smoke", "--out", str(out), "--time-limit-factor", bad]) == 2
+        err = capsys.readouterr().err
+        assert "time_limit_factor" in err and err.count("\n") == 1 and not out.exists()
