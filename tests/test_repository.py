@@ -65,8 +65,7 @@ def prose(source: str) -> list[tuple[int, str]]:
                     and isinstance(first.value.value, str):
                 # the offsets are UTF-8 byte columns
                 span = lines[first.lineno - 1:first.end_lineno]
-                span[-1] = span[-1][:first.end_col_offset] if len(span) > 1 else \
-                    span[-1][:first.end_col_offset]
+                span[-1] = span[-1][:first.end_col_offset]  # the end first: on one line both cut the same line
                 span[0] = span[0][first.col_offset:]
                 found.append((first.lineno, b"".join(span).decode()))
     return found

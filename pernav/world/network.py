@@ -102,6 +102,13 @@ class Town:
         )
 
 
+def _lane_distance(lane: AbstractLane, position: np.ndarray) -> tuple[float, np.float64]:
+    """``position``'s coordinate along ``lane`` and its distance to the lane's centre line: the hypot of the lateral
+    offset and the distance beyond an end (what :class:`LaneGrid`'s lookups compare)."""
+    s, lat = lane.local_coordinates(position)
+    return s, np.hypot(lat, max(0.0, -s, s - lane.length))
+
+
 def _reach_bounds(lane: AbstractLane) -> tuple | None:
     """What bounds a lane's distance (:meth:`LaneGrid.distance_to_road`'s hypot of the lateral offset and the
     distance beyond an end) from below: a straight lane's box ("straight", xmin, xmax, ymin, ymax) or an arc's
@@ -149,9 +156,7 @@ class LaneGrid:
         best, best_score, best_lat = None, np.inf, np.inf
         for index in self.near(position):
             lane = self.town.lane(index)
-            s, lat = lane.local_coordinates(position)
-            ds = max(0.0, -s, s - lane.length)
-            dist = np.hypot(lat, ds)
+            s, dist = _lane_distance(lane, position)
             score = dist
             if heading is not None:
                 dh = abs((lane.heading_at(np.clip(s, 0, lane.length)) - heading + np.pi) % (2 * np.pi) - np.pi)
@@ -178,10 +183,7 @@ class LaneGrid:
                     ax, ay = abs(x - cx), abs(y - cy)  # the distance to the centre is in [max(ax, ay), ax + ay]
                     if max(ax, ay) - radius > reach + 1e-6 or radius - (ax + ay) > reach + 1e-6:
                         continue
-            lane = self.town.lane(index)
-            s, lat = lane.local_coordinates(position)
-            ds = max(0.0, -s, s - lane.length)
-            if float(np.hypot(lat, ds)) <= reach:
+            if float(_lane_distance(self.town.lane(index), position)[1]) <= reach:
                 return True
         return np.inf <= reach  # distance_to_road's answer when no lane is near (or all are NaN)
 
@@ -189,8 +191,5 @@ class LaneGrid:
         """Distance from ``position`` to the nearest lane centre line (inf off the map)."""
         best = np.inf
         for index in self.near(position):
-            lane = self.town.lane(index)
-            s, lat = lane.local_coordinates(position)
-            ds = max(0.0, -s, s - lane.length)
-            best = min(best, float(np.hypot(lat, ds)))
+            best = min(best, float(_lane_distance(self.town.lane(index), position)[1]))
         return best
