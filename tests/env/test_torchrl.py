@@ -128,8 +128,9 @@ def test_history_window_serial_env_with_partial_reset() -> None:
 @pytest.mark.slow
 def test_history_window_parallel_env() -> None:
     # one ParallelEnv (worker start-up dominates the cost) with a window inside its workers (it travels to
-    # them as a state entry) and another one around it
-    env = TransformedEnv(ParallelEnv(2, _env_with_history), HistoryWindow(K=3, out_key="history3"))
+    # them as a state entry) and another one around it. Its workers are forked: spawned ones import torch and pernav
+    # again (27 against 13 CPU-s for this test); torch limits a forked child to one thread, so no OpenMP pool is copied
+    env = TransformedEnv(ParallelEnv(2, _env_with_history, mp_start_method="fork"), HistoryWindow(K=3, out_key="history3"))
     try:
         check_env_specs(env)
         env.set_seed(0)

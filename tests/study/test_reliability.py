@@ -37,7 +37,8 @@ def reference(tmp_path_factory) -> dict:
 def test_smoke_study_on_local_ray_equals_single_process(reference, tmp_path):
     import ray  # noqa: F401  (an install without the ray extra must fail here, not skip)
     out = tmp_path / "ray"
-    proc = subprocess.run([*CMD, *mini_arguments(tmp_path), "--out", str(out), "--ray", "--workers", "2"], env=ENV,
+    # one Ray worker: the mini study is one town, one task (a second worker would only be started and left idle)
+    proc = subprocess.run([*CMD, *mini_arguments(tmp_path), "--out", str(out), "--ray", "--workers", "1"], env=ENV,
                           capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr[-3000:]
     got = json.loads((out / "results.json").read_text())
