@@ -39,16 +39,22 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
+from pernav.env.navigation import FRAME_KEYS
 from pernav.env.policies import explore_policy
 from pernav.learners.belief import DT, AnswerDetector, BeliefTracker
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.retiming import Departure, RetimingPlanner
+from pernav.world.constants import TURNS
 
-__all__ = ["DriverBelief", "DriverPlanner", "DriverPrior", "DriverTracker", "Evidence", "adapt_phi", "meta_train",
-           "tau_loss"]
+__all__ = ["DriverBelief", "DriverPlanner", "DriverPrior", "DriverTracker", "Evidence", "Response", "adapt_phi",
+           "meta_train", "read_response", "tau_loss"]
 
 MIN_SD = 0.05  # the smallest spread of P or of an estimate (log s; s): never certain
+CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise read from it
+NEAR_JUNCTION = 8.0  # m: a "turn" step this close to its junction drives at the driver's turn speed
+APPROACH = 80.0  # m: a "turn" step's braking this close to its junction is braking for the turn
+MOVING = 0.5  # m/s, m/s^2: slower frames (stopped at a line, in a queue) and weaker pedals say nothing of the driver
 NEWTON_HALVINGS = 8  # U halves its step at most this often before it keeps the start
 
 
@@ -108,11 +114,64 @@ class Evidence:
 
 
 @dataclass(frozen=True)
+class Response:
+    """What a driver's drives say of its speeds (m/s, m/s^2), read from the frames the navigation senses
+    (:func:`read_response`): the speed it cruises at, drives a turn at, its braking for a turn and its acceleration.
+
+    >>> Response().turn_speed
+    5.0
+    """
+
+    cruise: float = 10.0
+    turn_speed: float = 5.0
+    brake: float = 2.0
+    accel: float = 1.5
+
+    def to_dict(self) -> dict[str, float]:
+        return {k: round(float(v), 3) for k, v in self.__dict__.items()}
+
+
+def read_response(trajectory: TensorDictBase, default: Response = Response()) -> Response:
+    """The driver's speeds in ``trajectory`` (a drive: ``"action"``, ``"distance_to_junction"`` and the
+    ``("next", "frames")`` the car's sensors gave): its cruise (a high quantile of its speeds), its turn speed (the
+    median speed of the "turn" steps within :data:`NEAR_JUNCTION` of their junction), its braking for a turn (the
+    median deceleration of the "turn" steps within :data:`APPROACH`) and its acceleration (the median of its
+    accelerating frames); ``default``'s where the drive shows none (no turn, never braked).
+
+    >>> from tensordict import TensorDict
+    >>> frames = torch.zeros(3, 10, 5); frames[..., 0] = torch.tensor([12.0, 9.0, 4.0])[:, None]
+    >>> frames[1, :, 1] = -2.5
+    >>> tau = TensorDict({"action": torch.tensor([0, 1, 1]), "distance_to_junction": torch.tensor([90.0, 40.0, 5.0]),
+    ...                   "next": {"frames": frames}}, [3])
+    >>> r = read_response(tau); (r.cruise, r.turn_speed, r.brake, r.accel)
+    (12.0, 4.0, 2.5, 1.5)
+    """
+    speed, acc = FRAME_KEYS.index("speed"), FRAME_KEYS.index("acceleration")
+    frames = trajectory["next", "frames"].double()
+    if not frames.numel():
+        return default
+    action = trajectory["action"].reshape(-1).long()
+    dj = trajectory["distance_to_junction"].reshape(-1).double()
+    turn = torch.isin(action, torch.tensor([int(t) for t in TURNS]))
+
+    def median(x: torch.Tensor, fallback: float) -> float:
+        return float(x.median()) if x.numel() else fallback
+
+    near = frames[turn & (dj <= NEAR_JUNCTION)][..., speed].reshape(-1)
+    braking = -frames[turn & (dj <= APPROACH)][..., acc].reshape(-1)
+    rising = frames[..., acc].reshape(-1)
+    return Response(cruise=float(frames[..., speed].reshape(-1).quantile(CRUISE_QUANTILE)),
+                    turn_speed=median(near[near > MOVING], default.turn_speed),
+                    brake=median(braking[braking > MOVING], default.brake),
+                    accel=median(rising[rising > MOVING], default.accel))
+
+
+@dataclass(frozen=True)
 class DriverPrior:
     """The meta model ``P``'s driver part: ``phi``'s centre and spread (``[log R, D]``), one prompt's log-SD
     ``sigma``, and the observation part's error rates: the detector's timing ``noise`` and share of misread answers
     ``outlier``; the probability ``hit`` that a late "turn" shows as a swerve or a miss, ``false`` that one in time
-    seems to; and the driver's turn speed and braking that the imagination uses."""
+    seems to; and the turn speed and braking the imagination uses where a drive shows none (:func:`read_response`)."""
 
     mean: tuple[float, float]
     sd: tuple[float, float]
@@ -303,14 +362,15 @@ def meta_train(prior: DriverPrior, rounds: list[tuple[Evidence, Evidence]], step
 class DriverBelief:
     """The driver's estimate as a :class:`~pernav.learners.belief.BeliefTracker` reads a drive into it: ``P``, the
     estimate before this drive (``start``; ``None``: ``P``'s centre) and this drive's evidence; :attr:`estimate` is
-    ``U`` from ``start`` on the drive so far (recomputed when evidence arrives). ``cruise``: the speed the driver
-    drives at between junctions (m/s), read from its drives' frames."""
+    ``U`` from ``start`` on the drive so far (recomputed when evidence arrives). ``response``: the driver's speeds,
+    read from its drives' frames (:func:`read_response`)."""
 
     decision = True  # the tracker reads the junctions' outcomes too
 
     def __init__(self, prior: DriverPrior, start: Estimate | None = None, adapt: bool = True,
-                 cruise: float = 10.0) -> None:
-        self.prior, self.start, self.adapt, self.cruise = prior, start, bool(adapt), float(cruise)
+                 response: Response | None = None) -> None:
+        self.prior, self.start, self.adapt = prior, start, bool(adapt)
+        self.response = response or Response(turn_speed=prior.turn_speed, brake=prior.brake)
         self.evidence = Evidence()
         self._estimate: Estimate | None = None
 
@@ -345,11 +405,11 @@ class DriverBelief:
 
     def drivers(self) -> list[DriverParams]:
         """The imagination's driver row: the estimate, one prompt's spread widened by the estimate's own (the
-        predictive reaction time), the prior's turn speed and braking."""
-        e = self.estimate
+        predictive reaction time), the speeds read from the driver's drives."""
+        e, r = self.estimate, self.response
         sigma = math.sqrt(self.prior.sigma**2 + e.sd[0] ** 2)
-        return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, self.prior.turn_speed,
-                             self.prior.brake, self.cruise)]
+        return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, r.turn_speed, r.brake, r.cruise,
+                             accel=r.accel)]
 
     def formula(self) -> dict[str, Any]:
         """The belief's formula on this estimate (the ablation "planner replaced by the belief's formula"): explore's
@@ -373,7 +433,7 @@ class DriverTracker(BeliefTracker):
 
     def copy(self) -> DriverTracker:
         """A tracker for another drive, from the same start (the evidence of a drive stays with it)."""
-        belief = DriverBelief(self.belief.prior, self.belief.start, self.belief.adapt, self.belief.cruise)
+        belief = DriverBelief(self.belief.prior, self.belief.start, self.belief.adapt, self.belief.response)
         return DriverTracker(self.detector, belief, self.swerve, self.formula)
 
     def carried(self) -> Estimate:

@@ -9,7 +9,10 @@ traffic):
 * a prompt played at the start of a step is heard by the end of its audio and takes effect a reaction time later,
   lognormal around the driver's mean reaction time ``R`` with a log-SD ``sigma`` (one draw per row of the
   imagination: rows are quantiles of that draw and samples of the driver's parameters);
-* once a prompt took effect the car brakes toward the driver's turn speed at its deceleration ``brake``;
+* once a "turn" took effect the driver means to reach the junction at its turn speed (after a "prepare" alone,
+  halfway between that and its cruise, which it also slows to a share ``prepared`` of): it brakes for it no earlier
+  than its comfortable deceleration ``brake`` needs (harder if it learns of the turn too late), so a prompt that
+  takes effect before that point changes nothing of the car's speed; it drives the turn at its turn speed;
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
   if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
   the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
@@ -61,6 +64,8 @@ SUBSTEPS = 2  # the imagination's steps per one-second decision (0.5 s: a decisi
 MIN_COMMIT = 4.0  # m: a driver commits no closer to the junction than this
 PROMPT_REACH = 160.0  # m: no prompt is said further than this before its junction (a "prepare" at the latest speeds)
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
+HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in multiples of its comfortable deceleration
+TURN_LENGTH = 12.0  # m past the junction's entry still driven at turn speed when turning
 
 
 @dataclass(frozen=True)
@@ -159,18 +164,29 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
         committed[:] = True
     dt = 1.0 / SUBSTEPS
     out_s, out_taken, out_v = [], [], []
+    inf = torch.full((M, N), math.inf, dtype=torch.float64)
     for h in range(H):
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
             inside = (~committed) & (s_junction - s <= commit_distance)
             taken = torch.where(inside, first <= t, taken)
             committed = committed | inside
-            before = s < s_junction
-            target = cruise.clone()
-            target = torch.where((first_prepare <= t) & before, torch.minimum(target, prepared * cruise), target)
-            target = torch.where((first_turn <= t) & taken & before, torch.minimum(target, v_turn), target)
-            rate = torch.where(v > target, brake.expand_as(v), accel.expand_as(v))
-            v = v + torch.clamp(target - v, -rate * dt, rate * dt)
+            d = s_junction - s
+            before = d > 0
+            turning = (first_turn <= t) & taken
+            preparing = (first_prepare <= t) & before
+            # the speed the driver means to reach the junction at: its turn speed once it knows it turns, halfway
+            # to its cruise on a "prepare" alone; it brakes for it only as late as its comfortable deceleration allows
+            arrive = torch.where(turning & before, v_turn.expand(M, N), inf)
+            arrive = torch.where(preparing & ~turning, (v_turn + cruise) / 2, arrive)
+            reach = torch.sqrt(arrive.clamp(max=FAR) ** 2 + 2 * brake * d.clamp(min=0.0))
+            reach = torch.where(torch.isinf(arrive), inf, reach)
+            target = torch.where(preparing, torch.minimum(cruise, prepared * cruise), cruise)
+            target = torch.where(turning & ~before & (d > -TURN_LENGTH), torch.minimum(target, v_turn), target)
+            target = torch.minimum(target, reach)
+            # a late-known turn is braked for harder than comfortably
+            down = torch.where(reach < v, HARD_BRAKE * brake, brake).expand_as(v)
+            v = torch.where(v > target, torch.maximum(v - down * dt, target), torch.minimum(v + accel * dt, target))
             s = s + v * dt
         out_s.append(s.clone())
         out_taken.append(taken.clone())

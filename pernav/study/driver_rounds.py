@@ -24,7 +24,16 @@ import torch
 
 from pernav.learners.answers import LabelledDrive
 from pernav.learners.belief import detectors
-from pernav.learners.driver import DriverBelief, DriverPrior, DriverTracker, Estimate, Evidence, meta_train
+from pernav.learners.driver import (
+    DriverBelief,
+    DriverPrior,
+    DriverTracker,
+    Estimate,
+    Evidence,
+    Response,
+    meta_train,
+    read_response,
+)
 
 __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_driver"]
 
@@ -35,7 +44,6 @@ SHIFTS = (-2, -1, 0, 1, 2, 3)
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain)
 DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2,
                                   "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None}}
-CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise the model reads from it
 
 
 def _sigma(drives: list[LabelledDrive]) -> float:
@@ -77,11 +85,6 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
             "prior": meta.to_dict(), "offline_pairs": [(a.state(), b.state()) for a, b in pairs]}
 
 
-def _cruise(trajectory: Any) -> float:
-    speeds = trajectory["next", "frames"][..., 0].reshape(-1).double()
-    return float(speeds.quantile(CRUISE_QUANTILE)) if len(speeds) else 10.0
-
-
 class DriverState:
     """The learner's state in a run (a checkpoint keeps :meth:`to_dict`): the offline fit, the meta model ``P``, the
     online rounds' ``(tau, other drives)`` evidence, each user's estimate (per ablation) and what it read per round."""
@@ -99,20 +102,21 @@ class DriverState:
     def prior(self, method: str) -> DriverPrior:
         return DriverPrior.from_dict(self.data["prior0" if method == "adapt_driver_prior" else "prior"])
 
-    def tracker(self, method: str, start: Estimate | None, cruise: float) -> DriverTracker:
-        belief = DriverBelief(self.prior(method), start, adapt=method != "adapt_driver_static", cruise=cruise)
+    def tracker(self, method: str, start: Estimate | None, response: Response) -> DriverTracker:
+        belief = DriverBelief(self.prior(method), start, adapt=method != "adapt_driver_static", response=response)
         return DriverTracker(self.detector, belief, self.swerve, formula=method == "adapt_driver_formula")
 
     def read_tau(self, user: str, label: str, tau: Any, methods: list[str]) -> dict[str, DriverTracker]:
         """Each method's tracker for the round's episodes: ``U`` on ``tau`` from this user's estimate so far (the
         meta model's centre on a first drive), and the evidence ``tau`` gave (kept for the meta update)."""
-        cruise = _cruise(tau)
+        prior = DriverPrior.from_dict(self.data["prior"])
+        response = read_response(tau, Response(turn_speed=prior.turn_speed, brake=prior.brake))
         chains = {"adapt_driver_prior" if m == "adapt_driver_prior" else "adapt_driver"
                   for m in methods if m != "adapt_driver_static"}
         estimates: dict[str, Estimate] = {}
         for key in sorted(chains):
             saved = self.data["estimates"].get(key, {}).get(user)
-            reader = self.tracker(key, Estimate(**saved) if saved else None, cruise)
+            reader = self.tracker(key, Estimate(**saved) if saved else None, response)
             reader.observe_drive(tau)
             estimates[key] = estimate = reader.carried()
             self.data["estimates"].setdefault(key, {})[user] = {"phi": estimate.phi, "sd": estimate.sd,
@@ -121,12 +125,13 @@ class DriverState:
                 self.data["tau_evidence"] = reader.belief.evidence.state()
             self.data["rounds"].setdefault(label, {})[key] = {
                 "reaction_time": round(estimate.reaction_time, 4), "decision_time": round(estimate.phi[1], 4),
-                "sd": [round(x, 4) for x in estimate.sd], "stepped": estimate.stepped, "cruise": round(cruise, 3),
+                "sd": [round(x, 4) for x in estimate.sd], "stepped": estimate.stepped, **response.to_dict(),
                 "evidence": len(reader.belief.evidence)}
         out = {}
         for method in methods:
             key = "adapt_driver_prior" if method == "adapt_driver_prior" else "adapt_driver"
-            out[method] = self.tracker(method, estimates.get(key) if method != "adapt_driver_static" else None, cruise)
+            out[method] = self.tracker(method, estimates.get(key) if method != "adapt_driver_static" else None,
+                                       response)
         return out
 
     def evidence_of(self, trajectory: Any, tracker: DriverTracker) -> Evidence:

@@ -10,8 +10,17 @@ from navigation_helpers import shared_value
 
 from pernav.env.torchrl_env import explore_module
 from pernav.learners.answers import fit_belief, labelled_drives
-from pernav.learners.driver import DriverPlanner, DriverPrior, Evidence, adapt_phi, meta_train, tau_loss
+from pernav.learners.driver import (
+    DriverPlanner,
+    DriverPrior,
+    Evidence,
+    adapt_phi,
+    meta_train,
+    read_response,
+    tau_loss,
+)
 from pernav.learners.outcomes import DECISION_GRID
+from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, fit_driver
 from pernav.trainer.collect import drive, history_env
 from pernav.world.drivers import Context, DriverProfile
@@ -72,6 +81,36 @@ def test_ftml_moves_the_meta_centre_toward_the_drivers_seen_and_scores_u_not_the
     before = float(tau_loss(torch.tensor(adapt_phi(prior, slow).phi, dtype=torch.float64), slow, prior))
     after = float(tau_loss(torch.tensor(adapt_phi(meta, slow).phi, dtype=torch.float64), slow, meta))
     assert after < before
+
+
+def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_after_it_brakes_later_and_harder():
+    from tensordict import TensorDict
+
+    route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)  # straight along x...
+    route[45:, 1] = (torch.arange(115.0) + 1) * 3
+    route[45:, 0] = route[44, 0]  # ...then left, 120 m ahead
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0  # 10 m/s, no prompt yet
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(120.0)}, [])
+    env = DriverImaginedEnv([DriverParams(reaction_time=0.5, decision_time=0.5, sigma=0.01, turn_speed=5.0, brake=2.0,
+                                          cruise=10.0)], quantiles=(0.0,))
+
+    def turn_from(step: int) -> torch.Tensor:
+        return torch.cat([torch.zeros(step, dtype=torch.long), torch.full((20 - step,), 1)])
+
+    # braking from 10 to 5 m/s at 2 m/s^2 takes 19 m: a "turn" known 100 m before the junction or 70 m before it
+    # changes nothing; one known 10 m before it (said after 10 s) is braked for later and harder: the car is further on
+    pos, _ = env.imagine(root, torch.stack([turn_from(0), turn_from(3), turn_from(10)]))
+    assert torch.allclose(pos[:, 0], pos[:, 1])
+    assert bool((pos[:, 2, -1, 1] > pos[:, 0, -1, 1] + 1.0).all())
+    assert bool((pos[:, :, -1, 1] > 20.0).all())  # every one turned
+
+
+def test_the_turn_speed_read_from_tau_follows_the_drivers():
+    # route 0: its turns are driven at the driver's turn speed (on route 1 a junction's own limits cap both drivers)
+    slow = read_response(_tau((DriverProfile(turn_speed=4.0), Context()), 0, 3))
+    quick = read_response(_tau((DriverProfile(turn_speed=9.0), Context()), 0, 3))
+    assert 3.0 < slow.turn_speed < 6.0 < 8.0 < quick.turn_speed < 10.5
 
 
 # ----- on simulated drives -------------------------------------------------------------------------------------

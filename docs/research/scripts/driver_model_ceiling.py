@@ -8,8 +8,10 @@ same episodes, seeds and pairs: it runs ``approach_divergences`` itself) and mea
   r a perfect model of the expectation reaches (the acceptance's "ceiling");
 * ``prior``: the hybrid model (``DriverImaginedEnv``) with ``DriverParams()``'s defaults;
 * ``true_params``: the model given the simulated driver's own reaction and decision time, turn speed, braking and
-  acceleration (read from the profile) and the cruise the learner reads from an explore drive (``_cruise``): a check
-  of the model's *structure*, not a learner at round time;
+  acceleration (read from the profile) and the cruise the learner reads from an explore drive
+  (:func:`~pernav.learners.driver.read_response`): a check of the model's *structure*, not a learner at round time;
+* ``tau_speeds``: the driver's own reaction and decision time, and the speeds ``adapt_driver`` reads from the
+  diagnostic's explore drive (``read_response``: cruise, turn speed, braking, acceleration), as at round time;
 * ``best_response``: ``true_params`` with each driver's response to a prompt (the share of its cruise it slows to on a
   "prepare", its braking and its acceleration) chosen on a grid to fit *that driver's own diagnostic states* (the
   least squared error of the divergences). It reads the judge's truth, so it is an upper bound on what adapting those
@@ -31,8 +33,8 @@ import torch
 from pernav.diagnostics.model_check import DELAY, STEPS, approach_divergences, driver_env
 from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module
+from pernav.learners.driver import read_response
 from pernav.model.driver import DriverImaginedEnv, DriverParams
-from pernav.study.driver_rounds import _cruise
 from pernav.trainer.collect import drive
 from pernav.world.drivers import Context, DriverProfile, named_user, resolve
 
@@ -69,11 +71,14 @@ def main() -> None:
     pooled: dict[str, list] = {}
     rows = {}
     for driver, (user, context) in PANEL.items():
-        cruise = _cruise(drive(driver_env(driver, args.town, 7, 77, K), explore_module()))  # the diagnostic's tau
+        seen = read_response(drive(driver_env(driver, args.town, 7, 77, K), explore_module()))  # the diagnostic's tau
+        cruise = seen.cruise
         own = true_params(user, context, cruise)
+        speeds = dataclasses.replace(own, turn_speed=seen.turn_speed, brake=seen.brake, accel=seen.accel)
         # every candidate is a model of the diagnostic's own loop: the same states, seeds and truth
         grid = [dataclasses.replace(own, **dict(zip(GRID, v, strict=True))) for v in itertools.product(*GRID.values())]
-        models = {"prior": DriverParams(), "true_params": own, **{f"grid{i}": p for i, p in enumerate(grid)}}
+        models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds,
+                  **{f"grid{i}": p for i, p in enumerate(grid)}}
         div = approach_divergences(driver, args.town, {k: (DriverImaginedEnv([p]), None) for k, p in models.items()},
                                    K=K, ceiling=args.ceiling)
         true = div["true"]
@@ -82,13 +87,13 @@ def main() -> None:
         errors = [float(((div[f"grid{i}"] - true) ** 2).mean()) for i in range(len(grid))]
         k = int(np.argmin(errors))  # the first of equal errors
         best = grid[k]
-        preds = {"prior": div["prior"], "true_params": div["true_params"],
+        preds = {"prior": div["prior"], "true_params": div["true_params"], "tau_speeds": div["tau_speeds"],
                  **({"ceiling": div["ceiling"]} if args.ceiling else {}), "best_response": div[f"grid{k}"]}
         pooled.setdefault("true", []).append(true)
         for k, v in preds.items():
             pooled.setdefault(k, []).append(v)
         rows[driver] = {"states": len(true), "true_mean": [round(float(x), 2) for x in true.mean(0)],
-                        "cruise": round(cruise, 2),
+                        "cruise": round(cruise, 2), "read_from_tau": seen.to_dict(),
                         "best_response_params": {k: getattr(best, k) for k in GRID},
                         **{k: figures(true, v) for k, v in preds.items()}}
         print(driver, json.dumps(rows[driver]), flush=True)
