@@ -20,10 +20,12 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
 import torch
 
+from pernav.env.navigation import FRAME_KEYS
 from pernav.learners.answers import LabelledDrive
-from pernav.learners.belief import detectors
+from pernav.learners.belief import detectors, frame_series
 from pernav.learners.driver import (
     DriverBelief,
     DriverPrior,
@@ -34,6 +36,8 @@ from pernav.learners.driver import (
     meta_train,
     read_response,
 )
+from pernav.model.driver import DriverParams
+from pernav.world.constants import PREPARES, TURNS
 
 __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_driver"]
 
@@ -42,6 +46,8 @@ DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "
 SHIFTS = (-2, -1, 0, 1, 2, 3)
 #: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain)
+PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read (offline)
+MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2,
                                   "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None}}
 
@@ -57,10 +63,38 @@ def _sigma(drives: list[LabelledDrive]) -> float:
     return float(torch.tensor(logs).std()) if len(logs) > 2 else 0.3
 
 
+def _prepared(drives: list[LabelledDrive]) -> float:
+    """The share of its speed a driver slows to on a "prepare", averaged over the offline drives' prepares: the least
+    speed from when it took effect (labelled) until its "turn" took effect, at most :data:`PREPARE_WINDOW` s, over the
+    speed then; a "prepare" that never took effect (misheard, ignored) slows nothing."""
+    prepares, turns = [int(p) for p in PREPARES], [int(t) for t in TURNS]
+    shares = []
+    for d in drives:
+        series, times = frame_series(torch.from_numpy(np.stack([s["frames"] for s in d.steps])),
+                                     torch.tensor([s["time"] for s in d.steps]))
+        speed = series[:, FRAME_KEYS.index("speed")]
+        played = [s for s in d.steps if s["played"]]
+        for i, step in enumerate(played):
+            if step["instruction"] not in prepares:
+                continue
+            effect = d.took_effect.get(step["prompt_end"])
+            if effect is None:
+                shares.append(1.0)
+                continue
+            turn = next((d.took_effect.get(q["prompt_end"]) for q in played[i + 1:] if q["instruction"] in turns), None)
+            end = min(turn if turn is not None else math.inf, effect + PREPARE_WINDOW)
+            window = (times >= effect) & (times <= end)
+            start = speed[int(torch.argmin((times - effect).abs()))]
+            if int(window.sum()) >= 3 and float(start) > MOVING_AT:
+                shares.append(float(speed[window].min() / start))
+    return sum(shares) / len(shares) if shares else DriverParams().prepared
+
+
 def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise: float, outlier: float
                ) -> dict[str, Any]:
     """The offline phase: ``P0``, the population's statistics (its drivers' ``log R`` and ``D``, known: they are
-    simulated; one prompt's spread from their labelled answers; the belief's detectors and error rates), and ``P``,
+    simulated; one prompt's spread and the slowing on a "prepare" from their labelled answers; the belief's detectors
+    and error rates), and ``P``,
     ``P0`` meta-trained on the same drivers (each drive's first half adapts, its second half scores)."""
     prior = belief_model["prior"]
     decision = prior["decision"]
@@ -68,7 +102,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
     D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
     p0 = DriverPrior((float(log_r.mean()), float(D.mean())), (float(log_r.std()), float(D.std())),
                      sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
-                     false=float(decision["false"]))
+                     false=float(decision["false"]), prepared=_prepared(drives))
     detector, swerve = detectors(belief_model)
     pairs = []
     for d in drives:

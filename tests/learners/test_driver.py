@@ -9,7 +9,7 @@ import torch
 from navigation_helpers import shared_value
 
 from pernav.env.torchrl_env import explore_module
-from pernav.learners.answers import fit_belief, labelled_drives
+from pernav.learners.answers import LabelledDrive, fit_belief, labelled_drives
 from pernav.learners.driver import (
     DriverPlanner,
     DriverPrior,
@@ -21,7 +21,7 @@ from pernav.learners.driver import (
 )
 from pernav.learners.outcomes import DECISION_GRID
 from pernav.model.driver import DriverImaginedEnv, DriverParams
-from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, fit_driver
+from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, _prepared, fit_driver
 from pernav.trainer.collect import drive, history_env
 from pernav.world.drivers import Context, DriverProfile
 
@@ -111,6 +111,35 @@ def test_the_turn_speed_read_from_tau_follows_the_drivers():
     slow = read_response(_tau((DriverProfile(turn_speed=4.0), Context()), 0, 3))
     quick = read_response(_tau((DriverProfile(turn_speed=9.0), Context()), 0, 3))
     assert 3.0 < slow.turn_speed < 6.0 < 8.0 < quick.turn_speed < 10.5
+
+
+def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
+    """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which
+    the car slows from 10 m/s to ``slowed_to`` (``None``: it never took effect), then a "turn" (played at 6 s) taking effect at 9 s."""
+    import numpy as np
+
+    steps = []
+    for k in range(12):
+        frames = np.zeros((10, 5), dtype=np.float32)
+        t = k + (np.arange(10) + 1) / 10  # the frames' times: the step ends at k + 1
+        frames[:, 0] = np.where((t > 5.0) & (slowed_to is not None), np.maximum(10.0 - (t - 5.0), slowed_to or 0), 10.0)
+        instruction = 3 if 2 <= k < 6 else (1 if k >= 6 else 0)
+        steps.append({"instruction": instruction, "played": k in (2, 6), "prompt_start": float(k),
+                      "prompt_end": float(k) + 1.9, "frames": frames, "time": float(k + 1), "junction": 50.0,
+                      "missed": 0, "swerve": False})
+    return LabelledDrive([], [], 1.0, 2.0, steps, {3.9: None if slowed_to is None else 5.0, 7.9: 9.0})
+
+
+def test_the_slowing_on_a_prepare_is_read_from_the_labelled_drives_and_an_unheard_one_slows_nothing():
+    assert _prepared([_prepare_drive(8.0)]) == pytest.approx(0.8)
+    assert _prepared([_prepare_drive(8.0), _prepare_drive(None)]) == pytest.approx(0.9)
+
+
+@pytest.mark.slow
+def test_the_offline_fit_reads_the_populations_slowing_on_a_prepare_and_ftml_keeps_it(driver_state):
+    # the simulated population slows on a "prepare", but less than the model's own assumption of 3/4 of its speed
+    assert 0.75 < driver_state["prior0"]["prepared"] < 1.0
+    assert driver_state["prior"]["prepared"] == driver_state["prior0"]["prepared"]
 
 
 # ----- on simulated drives -------------------------------------------------------------------------------------

@@ -11,7 +11,9 @@ same episodes, seeds and pairs: it runs ``approach_divergences`` itself) and mea
   acceleration (read from the profile) and the cruise the learner reads from an explore drive
   (:func:`~pernav.learners.driver.read_response`): a check of the model's *structure*, not a learner at round time;
 * ``tau_speeds``: the driver's own reaction and decision time, and the speeds ``adapt_driver`` reads from the
-  diagnostic's explore drive (``read_response``: cruise, turn speed, braking, acceleration), as at round time;
+  diagnostic's explore drive (``read_response``: cruise, turn speed, braking, acceleration), as at round time, with
+  ``--prepared`` the slowing on a "prepare" (adapt_driver's offline phase fits it: 0.85-0.87 on 24 population drivers
+  of Town1; the default is the model's own assumption);
 * ``best_response``: ``true_params`` with each driver's response to a prompt (the share of its cruise it slows to on a
   "prepare", its braking and its acceleration) chosen on a grid to fit *that driver's own diagnostic states* (the
   least squared error of the divergences). It reads the judge's truth, so it is an upper bound on what adapting those
@@ -66,6 +68,8 @@ def main() -> None:
     ap.add_argument("--town", default="Town1")
     ap.add_argument("--ceiling", type=int, default=20, help="samples of the ceiling (0: not measured)")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--prepared", type=float, default=DriverParams().prepared,
+                    help="the tau_speeds row's share of its speed a driver slows to on a prepare")
     args = ap.parse_args()
     torch.set_num_threads(1)
     pooled: dict[str, list] = {}
@@ -74,7 +78,8 @@ def main() -> None:
         seen = read_response(drive(driver_env(driver, args.town, 7, 77, K), explore_module()))  # the diagnostic's tau
         cruise = seen.cruise
         own = true_params(user, context, cruise)
-        speeds = dataclasses.replace(own, turn_speed=seen.turn_speed, brake=seen.brake, accel=seen.accel)
+        speeds = dataclasses.replace(own, turn_speed=seen.turn_speed, brake=seen.brake, accel=seen.accel,
+                                     prepared=args.prepared)
         # every candidate is a model of the diagnostic's own loop: the same states, seeds and truth
         grid = [dataclasses.replace(own, **dict(zip(GRID, v, strict=True))) for v in itertools.product(*GRID.values())]
         models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds,
