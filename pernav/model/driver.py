@@ -17,8 +17,6 @@ traffic):
   if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
   the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
   it alone);
-* a "turn" that took effect more than ``EARLY_TURN`` before its junction may be taken at a junction before it (the
-  model does not know where those are): in the rows that follow a lone "prepare", the car leaves the route there;
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -68,7 +66,6 @@ PROMPT_REACH = 160.0  # m: no prompt is said further than this before its juncti
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
 HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in multiples of its comfortable deceleration
 TURN_LENGTH = 12.0  # m past the junction's entry still driven at turn speed when turning
-EARLY_TURN = 80.0  # m: a "turn" known further than this before its junction may be taken at a junction before it
 
 
 @dataclass(frozen=True)
@@ -135,20 +132,6 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     return first_turn, first_prepare
 
 
-def _turned_early(pos: torch.Tensor, route: torch.Tensor, s_all: torch.Tensor, s_heard: torch.Tensor,
-                  early: torch.Tensor) -> torch.Tensor:
-    """``pos`` ``[M, N, H, 2]`` with the ``early`` ``[M, N]`` rows leaving the route at right angles where their
-    "turn" took effect (arc length ``s_heard`` ``[M, N]``; ``s_all`` ``[M, N, H]`` the car's)."""
-    off = early.unsqueeze(-1) & (s_all > s_heard.unsqueeze(-1) + WAYPOINT_SPACING)
-    if not bool(off.any()):
-        return pos
-    at = _route_at(route, s_heard.clamp(max=1e4))  # [M, N, 2]
-    ahead = _route_at(route, s_heard.clamp(max=1e4) + WAYPOINT_SPACING) - at
-    normal = torch.stack([-ahead[..., 1], ahead[..., 0]], -1) / ahead.norm(dim=-1, keepdim=True).clamp(min=1e-6)
-    turned = at.unsqueeze(2) + (s_all - s_heard.unsqueeze(-1)).clamp(min=0.0).unsqueeze(-1) * normal.unsqueeze(2)
-    return torch.where(off.unsqueeze(-1), turned, pos)
-
-
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
@@ -182,7 +165,6 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     dt = 1.0 / SUBSTEPS
     out_s, out_taken, out_v = [], [], []
     inf = torch.full((M, N), math.inf, dtype=torch.float64)
-    s_heard = inf.clone()  # where the car was when its "turn" took effect
     for h in range(H):
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
@@ -192,7 +174,6 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             d = s_junction - s
             before = d > 0
             turning = (first_turn <= t) & taken
-            s_heard = torch.where((first_turn <= t) & torch.isinf(s_heard), s, s_heard)
             preparing = (first_prepare <= t) & before
             # the speed the driver means to reach the junction at: its turn speed once it knows it turns, halfway
             # to its cruise on a "prepare" alone; it brakes for it only as late as its comfortable deceleration allows
@@ -221,9 +202,6 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     straight = junction + (s_all - s_junction).clamp(min=0.0).unsqueeze(-1) * direction
     missed = (~taken_all) & (s_all > s_junction)
     pos = torch.where(missed.unsqueeze(-1), straight, on_route)
-    # a "turn" known far before its junction may be taken at a junction before it (the model does not know where
-    # those are): in the rows that follow a lone "prepare", the car leaves the route where it knew, at right angles
-    pos = _turned_early(pos, route, s_all, s_heard, (follow > 0) & (s_heard < s_junction - EARLY_TURN))
     # the navigation's goal: where the car would be one step on at its speed, along the route
     v_all = torch.stack(out_v, -1)
     goal = _route_at(route, s_all + torch.clamp(v_all * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING))
