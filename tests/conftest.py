@@ -30,16 +30,22 @@ PAIRS = (
     ("tests/learners/test_belief.py::test_a_late_answering_driver_gets_a_later_belief_and_earlier_prompts_a_quick_one_"
      "explore",
      "tests/learners/test_belief.py::test_the_posterior_narrows_with_drives_of_the_same_driver"),
-    ("tests/learners/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
-     "follow",
-     "tests/learners/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
     ("tests/study/test_reliability.py::test_smoke_study_on_local_ray_equals_single_process",
      "tests/study/test_reliability.py::test_sigkill_at_random_moments_then_resume_gives_the_same_results"),
     ("tests/study/test_headroom.py::test_a_study_runs_the_timing_learner_and_records_its_beliefs",
      "tests/study/test_reliability.py::test_nan_loss_is_skipped_and_the_study_finishes"),
+    # the belief's development drivers are built by the pair before; started beside it, this pair waited for them
+    ("tests/learners/test_belief.py::test_within_a_drive_the_belief_moves_after_an_answered_prompt_and_the_prompts_"
+     "follow",
+     "tests/learners/test_belief.py::test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_outcomes"),
     ("tests/world/test_acceptance.py::test_too_late_swerves_strike_for_truck_and_fast_keyboard",
      "tests/play/test_play.py::test_bench_play_reports_frame_times"),
 )
+
+# Slow tests that read what another slow test of their module builds for both workers (a shared folder): they go after
+# the other slow tests, so that it is built by then (started beside its builder, a worker waited for it, 19 s)
+LATE = ("tests/play/test_lab_study.py",)
+BUILDERS = ("tests/play/test_lab_study.py::test_three_participants_drive_the_learners_as_counterbalanced_conditions",)
 
 
 def pytest_collection_modifyitems(config, items):
@@ -48,7 +54,8 @@ def pytest_collection_modifyitems(config, items):
     workers and the short ones fill in around them, instead of a long check starting last while the other worker
     idles. The other slow tests of the folders whose checks take longest come first, a module at a time from each
     folder in turn: a module's tests stay together, so that its module fixtures are built once per worker instead
-    of again each time the order comes back to it."""
+    of again each time the order comes back to it. The tests of :data:`LATE` but their builders go after the other slow
+    tests."""
     order = ("study", "world", "play")
     first = [nodeid for pair in PAIRS for nodeid in pair]
 
@@ -73,4 +80,9 @@ def pytest_collection_modifyitems(config, items):
     turns = [item for i in range(max(map(len, modules), default=0)) for in_folder in modules if i < len(in_folder)
              for item in in_folder[i]]
     turns.sort(key=rank)  # stable: the slow tests not in PAIRS keep their turns
+
+    def late(item) -> bool:
+        return item.nodeid.split("::")[0] in LATE and item.nodeid not in BUILDERS
+
+    turns = [item for item in turns if not late(item)] + [item for item in turns if late(item)]
     items[:] = turns + [item for item in items if item.get_closest_marker("slow") is None]
