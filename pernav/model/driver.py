@@ -16,7 +16,8 @@ traffic):
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
   if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
   the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
-  it alone);
+  it alone); where the route goes straight through the junction ahead (read from its shape), a "turn" in effect
+  then is taken there (a wrong turn);
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -66,6 +67,7 @@ PROMPT_REACH = 160.0  # m: no prompt is said further than this before its juncti
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
 HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in multiples of its comfortable deceleration
 TURN_LENGTH = 12.0  # m past the junction's entry still driven at turn speed when turning
+STRAIGHT_DEG = 30.0  # degrees: a route that turns less than this at a junction goes straight through it
 
 
 @dataclass(frozen=True)
@@ -132,6 +134,39 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     return first_turn, first_prepare
 
 
+def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The junction's point on the route, and the unit directions the route comes in by and leaves by."""
+    s_j = min(s_junction, 1e4)
+
+    def at(x: float) -> torch.Tensor:
+        return _route_at(route, torch.tensor(x, dtype=torch.float64))
+
+    junction = at(s_j)
+    into, out = junction - at(max(s_j - 9.0, -ROUTE_BEHIND)), at(s_j + 9.0) - junction
+    return junction, into / into.norm().clamp(min=1e-6), out / out.norm().clamp(min=1e-6)
+
+
+def _goes_straight(route: torch.Tensor, s_junction: float) -> bool:
+    """Whether the route goes straight through the junction ahead (turns by under :data:`STRAIGHT_DEG`)."""
+    if s_junction >= FAR:
+        return False
+    _, into, out = _directions(route, s_junction)
+    return float((into * out).sum()) > math.cos(math.radians(STRAIGHT_DEG))
+
+
+def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor
+               ) -> torch.Tensor:
+    """``[M, N, H, 2]`` positions at arc lengths ``s_all``: along the route, but straight on past a junction whose turn
+    was missed (``taken`` ``[M, N, H]`` false) and off to the side past one the route goes straight through where a
+    turn was taken (``wrong`` ``[M, N]``)."""
+    junction, into, _ = _directions(route, s_junction)
+    past = (s_all - s_junction).clamp(min=0.0).unsqueeze(-1)
+    beyond = (s_all > s_junction).unsqueeze(-1)
+    pos = torch.where(~taken.unsqueeze(-1) & beyond, junction + past * into, _route_at(route, s_all))
+    side = torch.stack([-into[1], into[0]])
+    return torch.where(wrong[..., None, None] & beyond, junction + past * side, pos)
+
+
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
@@ -159,6 +194,8 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     v = torch.full((M, N), v0, dtype=torch.float64)
     committed = torch.zeros(M, N, dtype=torch.bool)
     taken = torch.ones(M, N, dtype=torch.bool)
+    wrong = torch.zeros(M, N, dtype=torch.bool)  # turned where the route goes straight through
+    through = _goes_straight(route, s_junction)
     commit_distance = torch.clamp(D * v0, min=MIN_COMMIT)  # [M, 1]
     if s_junction - commit_distance.min() <= 0:  # already committed before the root: decided, unknown to us
         committed[:] = True
@@ -169,7 +206,10 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
             inside = (~committed) & (s_junction - s <= commit_distance)
-            taken = torch.where(inside, first <= t, taken)
+            if through:  # the route goes straight: a turn in effect here is taken here
+                wrong = torch.where(inside, first <= t, wrong)
+            else:
+                taken = torch.where(inside, first <= t, taken)
             committed = committed | inside
             d = s_junction - s
             before = d > 0
@@ -193,15 +233,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
         out_v.append(v.clone())
     s_all = torch.stack(out_s, -1)  # [M, N, H]
     taken_all = torch.stack(out_taken, -1)
-    on_route = _route_at(route, s_all)
-    # a missed junction: straight on from its point along the approach's direction
-    junction = _route_at(route, torch.tensor(min(s_junction, 1e4), dtype=torch.float64))
-    before = _route_at(route, torch.tensor(max(min(s_junction, 1e4) - 9.0, -ROUTE_BEHIND), dtype=torch.float64))
-    direction = junction - before
-    direction = direction / direction.norm().clamp(min=1e-6)
-    straight = junction + (s_all - s_junction).clamp(min=0.0).unsqueeze(-1) * direction
-    missed = (~taken_all) & (s_all > s_junction)
-    pos = torch.where(missed.unsqueeze(-1), straight, on_route)
+    pos = _positions(route, s_junction, s_all, taken_all, wrong)
     # the navigation's goal: where the car would be one step on at its speed, along the route
     v_all = torch.stack(out_v, -1)
     goal = _route_at(route, s_all + torch.clamp(v_all * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING))

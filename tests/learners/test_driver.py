@@ -113,6 +113,22 @@ def test_the_turn_speed_read_from_tau_follows_the_drivers():
     assert 3.0 < slow.turn_speed < 6.0 < 8.0 < quick.turn_speed < 10.5
 
 
+def test_a_turn_in_effect_at_a_junction_the_route_goes_straight_through_is_taken_there():
+    from tensordict import TensorDict
+
+    route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)  # straight on through a junction 60 m on
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(60.0)}, [])
+    env = DriverImaginedEnv([DriverParams(reaction_time=0.5, sigma=0.01, cruise=10.0)], quantiles=(0.0,))
+    said = torch.stack([torch.full((12,), 1), torch.cat([torch.zeros(9, dtype=torch.long), torch.full((3,), 1)])])
+    pos, _ = env.imagine(root, said)
+    # said now, the "turn" is in effect at the junction: the car leaves the route there; said once the car is
+    # through it, the car drives on along the route
+    assert bool((pos[:, 0, -1, 1].abs() > 10.0).all()) and bool((pos[:, 0, -1, 0] < 70.0).all())
+    assert bool((pos[:, 1, -1, 1].abs() < 1e-4).all())
+
+
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
     """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which
     the car slows from 10 m/s to ``slowed_to`` (``None``: it never took effect), then a "turn" (played at 6 s)
