@@ -16,8 +16,9 @@ traffic):
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
   if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
   the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
-  it alone); where the route goes straight through the junction ahead (read from its shape), a "turn" in effect
-  then is taken there (a wrong turn);
+  it alone); where the route goes straight through the junction ahead (read from its shape), the prompts are for
+  the next point where it turns, and a "turn" in effect at the junction it goes straight through is taken there (a
+  wrong turn);
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -68,6 +69,7 @@ FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
 HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in multiples of its comfortable deceleration
 TURN_LENGTH = 12.0  # m past the junction's entry still driven at turn speed when turning
 STRAIGHT_DEG = 30.0  # degrees: a route that turns less than this at a junction goes straight through it
+JUNCTION_SPAN = 9.0  # m either side of a point over which the route's turn there is measured
 
 
 @dataclass(frozen=True)
@@ -142,7 +144,7 @@ def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, t
         return _route_at(route, torch.tensor(x, dtype=torch.float64))
 
     junction = at(s_j)
-    into, out = junction - at(max(s_j - 9.0, -ROUTE_BEHIND)), at(s_j + 9.0) - junction
+    into, out = junction - at(max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND)), at(s_j + JUNCTION_SPAN) - junction
     return junction, into / into.norm().clamp(min=1e-6), out / out.norm().clamp(min=1e-6)
 
 
@@ -154,17 +156,35 @@ def _goes_straight(route: torch.Tensor, s_junction: float) -> bool:
     return float((into * out).sum()) > math.cos(math.radians(STRAIGHT_DEG))
 
 
-def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor
-               ) -> torch.Tensor:
-    """``[M, N, H, 2]`` positions at arc lengths ``s_all``: along the route, but straight on past a junction whose turn
-    was missed (``taken`` ``[M, N, H]`` false) and off to the side past one the route goes straight through where a
-    turn was taken (``wrong`` ``[M, N]``)."""
+def _next_turn(route: torch.Tensor, s_from: float) -> float:
+    """The arc length of the first point past ``s_from`` where the route turns (by :data:`STRAIGHT_DEG` or more over
+    a junction's length), or :data:`FAR` if it goes straight to the end of ``route``."""
+    s_end = (route.shape[0] - 1 - HERE) * ROUTE_SPACING - JUNCTION_SPAN
+    s = torch.arange(s_from + ROUTE_SPACING, s_end, ROUTE_SPACING, dtype=torch.float64)
+    if not len(s):
+        return FAR
+    here = _route_at(route, s)
+    into, out = here - _route_at(route, s - JUNCTION_SPAN), _route_at(route, s + JUNCTION_SPAN) - here
+    cos = (into * out).sum(-1) / (into.norm(dim=-1) * out.norm(dim=-1)).clamp(min=1e-6)
+    turns = (cos < math.cos(math.radians(STRAIGHT_DEG))).nonzero()
+    return float(s[turns[0, 0]]) if len(turns) else FAR
+
+
+def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor,
+               s_wrong: float) -> torch.Tensor:
+    """``[M, N, H, 2]`` positions at arc lengths ``s_all``: along the route, but straight on past the junction
+    ``s_junction`` whose turn was missed (``taken`` ``[M, N, H]`` false) and off to the side past the junction
+    ``s_wrong`` the route goes straight through, where a turn was taken (``wrong`` ``[M, N]``)."""
     junction, into, _ = _directions(route, s_junction)
     past = (s_all - s_junction).clamp(min=0.0).unsqueeze(-1)
-    beyond = (s_all > s_junction).unsqueeze(-1)
-    pos = torch.where(~taken.unsqueeze(-1) & beyond, junction + past * into, _route_at(route, s_all))
+    pos = torch.where(~taken.unsqueeze(-1) & (s_all > s_junction).unsqueeze(-1), junction + past * into,
+                      _route_at(route, s_all))
+    if not bool(wrong.any()):
+        return pos
+    junction, into, _ = _directions(route, s_wrong)
     side = torch.stack([-into[1], into[0]])
-    return torch.where(wrong[..., None, None] & beyond, junction + past * side, pos)
+    off = junction + (s_all - s_wrong).clamp(min=0.0).unsqueeze(-1) * side
+    return torch.where(wrong[..., None, None] & (s_all > s_wrong).unsqueeze(-1), off, pos)
 
 
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
@@ -178,7 +198,10 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
     hist = root["history"].double()
     route = root["route_ahead"].double()
-    s_junction = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
+    s_first = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
+    # where the route goes straight through the junction ahead, the prompts are for the next one it turns at
+    through = _goes_straight(route, s_first)
+    s_junction = _next_turn(route, s_first) if through else s_first
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()
@@ -187,7 +210,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
     cruise = cruise.expand(M, N)
-    first_turn, first_prepare = _effects(hist, sequences, reaction, s_junction, v0)
+    first_turn, first_prepare = _effects(hist, sequences, reaction, s_first, v0)  # the prompts heard by the next one
     # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
     first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
     s = torch.zeros(M, N, dtype=torch.float64)
@@ -195,9 +218,10 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     committed = torch.zeros(M, N, dtype=torch.bool)
     taken = torch.ones(M, N, dtype=torch.bool)
     wrong = torch.zeros(M, N, dtype=torch.bool)  # turned where the route goes straight through
-    through = _goes_straight(route, s_junction)
     commit_distance = torch.clamp(D * v0, min=MIN_COMMIT)  # [M, 1]
-    if s_junction - commit_distance.min() <= 0:  # already committed before the root: decided, unknown to us
+    # already committed before the root: decided, unknown to us
+    passed = torch.full((M, N), bool(s_first - commit_distance.min() <= 0))
+    if s_junction - commit_distance.min() <= 0:
         committed[:] = True
     dt = 1.0 / SUBSTEPS
     out_s, out_taken, out_v = [], [], []
@@ -205,11 +229,12 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     for h in range(H):
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
+            if through:  # a turn in effect at the junction the route goes straight through is taken there
+                at_first = (~passed) & (s_first - s <= commit_distance)
+                wrong = torch.where(at_first, first <= t, wrong)
+                passed = passed | at_first
             inside = (~committed) & (s_junction - s <= commit_distance)
-            if through:  # the route goes straight: a turn in effect here is taken here
-                wrong = torch.where(inside, first <= t, wrong)
-            else:
-                taken = torch.where(inside, first <= t, taken)
+            taken = torch.where(inside, first <= t, taken)
             committed = committed | inside
             d = s_junction - s
             before = d > 0
@@ -233,7 +258,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
         out_v.append(v.clone())
     s_all = torch.stack(out_s, -1)  # [M, N, H]
     taken_all = torch.stack(out_taken, -1)
-    pos = _positions(route, s_junction, s_all, taken_all, wrong)
+    pos = _positions(route, s_junction, s_all, taken_all, wrong, s_first)
     # the navigation's goal: where the car would be one step on at its speed, along the route
     v_all = torch.stack(out_v, -1)
     goal = _route_at(route, s_all + torch.clamp(v_all * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING))
