@@ -160,9 +160,9 @@ def _next_turn(route: torch.Tensor, s_from: float) -> float:
     """The arc length of the first point past ``s_from`` where the route turns (by :data:`STRAIGHT_DEG` or more over
     a junction's length), or :data:`FAR` if it goes straight to the end of ``route``."""
     s_end = (route.shape[0] - 1 - HERE) * ROUTE_SPACING - JUNCTION_SPAN
-    s = torch.arange(s_from + ROUTE_SPACING, s_end, ROUTE_SPACING, dtype=torch.float64)
-    if not len(s):
+    if s_from + ROUTE_SPACING >= s_end:  # the junction ahead is at the end of what the route shows
         return FAR
+    s = torch.arange(s_from + ROUTE_SPACING, s_end, ROUTE_SPACING, dtype=torch.float64)
     here = _route_at(route, s)
     into, out = here - _route_at(route, s - JUNCTION_SPAN), _route_at(route, s + JUNCTION_SPAN) - here
     cos = (into * out).sum(-1) / (into.norm(dim=-1) * out.norm(dim=-1)).clamp(min=1e-6)

@@ -127,6 +127,10 @@ def test_a_turn_in_effect_at_a_junction_the_route_goes_straight_through_is_taken
     # through it, the car drives on along the route
     assert bool((pos[:, 0, -1, 1].abs() > 10.0).all()) and bool((pos[:, 0, -1, 0] < 70.0).all())
     assert bool((pos[:, 1, -1, 1].abs() < 1e-4).all())
+    # a junction ahead at or past the end of the route the env shows: nothing beyond it to turn at
+    for far in (450.0, 600.0):
+        root["distance_to_junction"] = torch.tensor(far)
+        assert torch.isfinite(env.imagine(root, said)[0]).all()
 
 
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
