@@ -26,7 +26,7 @@ $(STAMP): pyproject.toml
 study: $(STAMP)
 	OMP_WAIT_POLICY=PASSIVE $(BIN)/pernav study --preset default --out $(OUT) --workers 2 --resume
 
-# every test and every module's doctests (8 minutes from a fresh clone on the 2-core development machine, of which 45 s
+# every test and every module's doctests (7.5 minutes from a fresh clone on the 2-core development machine, of which 45 s
 # set-up; the target is 7). One torch thread per pytest worker:
 # two workers on two cores, instead of torch's default of one thread per core in each
 test: $(STAMP)
