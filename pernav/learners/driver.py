@@ -194,6 +194,10 @@ class DriverPrior:
     def reaction_time(self) -> float:
         return math.exp(self.mean[0])
 
+    def speeds(self) -> Response:
+        """The driver's speeds where its drives show none (:func:`read_response`'s default)."""
+        return Response(turn_speed=self.turn_speed, brake=self.brake)
+
     def centre(self) -> torch.Tensor:
         return torch.tensor(self.mean, dtype=torch.float64)
 
@@ -372,7 +376,7 @@ class DriverBelief:
     def __init__(self, prior: DriverPrior, start: Estimate | None = None, adapt: bool = True,
                  response: Response | None = None) -> None:
         self.prior, self.start, self.adapt = prior, start, bool(adapt)
-        self.response = response or Response(turn_speed=prior.turn_speed, brake=prior.brake)
+        self.response = response or prior.speeds()
         self.evidence = Evidence()
         self._estimate: Estimate | None = None
 

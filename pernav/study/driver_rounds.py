@@ -143,8 +143,7 @@ class DriverState:
     def read_tau(self, user: str, label: str, tau: Any, methods: list[str]) -> dict[str, DriverTracker]:
         """Each method's tracker for the round's episodes: ``U`` on ``tau`` from this user's estimate so far (the
         meta model's centre on a first drive), and the evidence ``tau`` gave (kept for the meta update)."""
-        prior = DriverPrior.from_dict(self.data["prior"])
-        response = read_response(tau, Response(turn_speed=prior.turn_speed, brake=prior.brake))
+        response = read_response(tau, self.prior("adapt_driver").speeds())
         chains = {"adapt_driver_prior" if m == "adapt_driver_prior" else "adapt_driver"
                   for m in methods if m != "adapt_driver_static"}
         estimates: dict[str, Estimate] = {}
