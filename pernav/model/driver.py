@@ -18,7 +18,11 @@ traffic):
   the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
   it alone); where the route goes straight through the junction ahead (read from its shape), the prompts are for
   the next point where it turns, and a "turn" in effect at the junction it goes straight through is taken there (a
-  wrong turn);
+  wrong turn); whether it goes straight is read from the direction the route leaves by past the junction's box;
+* on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
+  slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
+  (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring,
+  and a sequence with no "turn" means to stay;
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -55,6 +59,7 @@ from pernav.world.constants import (
     GOAL_LOOKAHEAD_S,
     N_INSTRUCTIONS,
     PREPARES,
+    TURNS,
     WAYPOINT_SPACING,
     Instruction,
 )
@@ -70,6 +75,9 @@ HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in mult
 TURN_LENGTH = 12.0  # m past the junction's entry still driven at turn speed when turning
 STRAIGHT_DEG = 30.0  # degrees: a route that turns less than this at a junction goes straight through it
 JUNCTION_SPAN = 9.0  # m either side of a point over which the route's turn there is measured
+# m past a junction's entry (``distance_to_junction``) where the route has left it: a turn's arc through a junction
+# box is 15-25 m long, so the direction the route leaves by is measured past it, not at the entry
+JUNCTION_ARC = 24.0
 
 
 @dataclass(frozen=True)
@@ -114,7 +122,7 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float
              ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``([M, N], [M, N])``: when the first "turn"-like prompt and the first "prepare" for the junction ahead take effect
+    """``([M, N], [M, N])``: when the first "turn" and the first "prepare" for the junction ahead take effect
     (s from now; ``inf``: none), for each row's reaction time ``reaction`` ``[M, 1]`` and each sequence."""
     N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
@@ -131,7 +139,9 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
     effect = torch.where((played & reach).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
-    first_turn = torch.where(prepare, torch.full_like(effect, math.inf), effect).min(-1).values  # [M, N]
+    # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
+    turn = torch.isin(actions, torch.tensor(TURNS)).unsqueeze(0)
+    first_turn = torch.where(turn, effect, torch.full_like(effect, math.inf)).min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
     return first_turn, first_prepare
 
@@ -144,7 +154,8 @@ def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, t
         return _route_at(route, torch.tensor(x, dtype=torch.float64))
 
     junction = at(s_j)
-    into, out = junction - at(max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND)), at(s_j + JUNCTION_SPAN) - junction
+    into = junction - at(max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND))
+    out = at(s_j + JUNCTION_ARC + JUNCTION_SPAN) - at(s_j + JUNCTION_ARC)
     return junction, into / into.norm().clamp(min=1e-6), out / out.norm().clamp(min=1e-6)
 
 
@@ -168,6 +179,29 @@ def _next_turn(route: torch.Tensor, s_from: float) -> float:
     cos = (into * out).sum(-1) / (into.norm(dim=-1) * out.norm(dim=-1)).clamp(min=1e-6)
     turns = (cos < math.cos(math.radians(STRAIGHT_DEG))).nonzero()
     return float(s[turns[0, 0]]) if len(turns) else FAR
+
+
+def _junction_ahead(root: TensorDictBase, route: torch.Tensor) -> tuple[float, float, bool, bool, bool]:
+    """``(s_first, s_junction, through, ring, in_ring)``: the next manoeuvre's arc length (the env's
+    ``distance_to_junction``), the one the prompts are for (where the route goes straight through the first, the next
+    point it turns at), whether it goes straight through the first, and the navigation's own roundabout flags."""
+    keys = root.keys()
+    s_first = float(root["distance_to_junction"]) if "distance_to_junction" in keys else FAR
+    in_ring = "in_roundabout" in keys and bool(root["in_roundabout"])
+    ring = in_ring or ("near_roundabout" in keys and bool(root["near_roundabout"]))
+    through = not ring and _goes_straight(route, s_first)
+    return s_first, (_next_turn(route, s_first) if through else s_first), through, ring, in_ring
+
+
+def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(first, first_turn)`` at a roundabout: on the way in no branch is chosen and the driver sees the ring and
+    slows for it (both known from the start); on the ring a "turn" takes the exit ahead, and a sequence with no "turn"
+    means to pass it (the car stays on the ring, the route)."""
+    if not in_ring:
+        known = torch.full_like(first, -math.inf)
+        return known, known
+    stay = torch.where(torch.isinf(first_turn), torch.full_like(first, -math.inf), first_turn)
+    return stay, stay
 
 
 def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor,
@@ -198,10 +232,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
     hist = root["history"].double()
     route = root["route_ahead"].double()
-    s_first = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else FAR
-    # where the route goes straight through the junction ahead, the prompts are for the next one it turns at
-    through = _goes_straight(route, s_first)
-    s_junction = _next_turn(route, s_first) if through else s_first
+    s_first, s_junction, through, ring, in_ring = _junction_ahead(root, route)
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()
@@ -213,6 +244,8 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     first_turn, first_prepare = _effects(hist, sequences, reaction, s_first, v0)  # the prompts heard by the next one
     # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
     first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
+    if ring:
+        first, first_turn = _at_roundabout(first, first_turn, in_ring)
     s = torch.zeros(M, N, dtype=torch.float64)
     v = torch.full((M, N), v0, dtype=torch.float64)
     committed = torch.zeros(M, N, dtype=torch.bool)

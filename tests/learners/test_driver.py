@@ -20,9 +20,10 @@ from pernav.learners.driver import (
     tau_loss,
 )
 from pernav.learners.outcomes import DECISION_GRID
-from pernav.model.driver import DriverImaginedEnv, DriverParams
+from pernav.model.driver import DriverImaginedEnv, DriverParams, _goes_straight
 from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, _prepared, fit_driver
 from pernav.trainer.collect import drive, history_env
+from pernav.world.constants import Instruction
 from pernav.world.drivers import Context, DriverProfile
 
 
@@ -132,6 +133,48 @@ def test_a_turn_in_effect_at_a_junction_the_route_goes_straight_through_is_taken
         root["distance_to_junction"] = torch.tensor(far)
         assert torch.isfinite(env.imagine(root, said)[0]).all()
 
+
+
+def _arc_route(radius: float) -> torch.Tensor:
+    """``route_ahead`` points 3 m apart: east 75 m (the junction's entry 60 m on, past 15 m behind the car), then a
+    left turn on an arc of ``radius`` m, then north."""
+    pts = [(x, 0.0) for x in torch.arange(-15.0, 60.0, 3.0).tolist()]
+    arc = math.pi / 2 * radius
+    pts += [(60.0 + radius * math.sin(a / radius), radius - radius * math.cos(a / radius))
+            for a in torch.arange(0.0, arc, 3.0).tolist()]
+    pts += [(60.0 + radius, radius + y) for y in torch.arange(0.0, 200.0, 3.0).tolist()]
+    return torch.tensor(pts[:96])
+
+
+def test_a_turn_through_a_wide_junction_box_is_a_turn_not_straight_on():
+    # a 90-degree turn on a 15 m arc bends less than 30 degrees within 9 m of the box's entry: measured past the box
+    for radius in (6.0, 15.0):
+        assert not _goes_straight(_arc_route(radius).double(), 60.0)
+    assert _goes_straight(torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1).double(), 60.0)
+
+
+def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_on_the_ring_a_turn_takes_the_exit():
+    from tensordict import TensorDict
+
+    history = torch.zeros(5, 21)
+    history[:, 3] = 8.0
+    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, cruise=8.0)], quantiles=(0.0,))
+    enter, keep = Instruction.ENTER_ROUNDABOUT, Instruction.KEEP_LEFT
+    now = torch.full((12,), int(enter))
+    late = torch.cat([torch.zeros(8, dtype=torch.long), torch.full((4,), int(enter))])
+    root = TensorDict({"history": history, "route_ahead": _arc_route(15.0), "distance_to_junction": torch.tensor(40.0),
+                       "near_roundabout": torch.tensor(True), "in_roundabout": torch.tensor(False)}, [])
+    pos, _ = env.imagine(root, torch.stack([now, late]))
+    # the driver enters the ring either way and slows for it whatever it heard: the same drive
+    assert torch.allclose(pos[:, 0], pos[:, 1]) and bool((pos[:, :, -1, 1] > 10.0).all())
+    # on the ring: "keep left" (no "turn") stays on the route; a "turn" in effect when it commits takes the exit ahead;
+    # one said too late for it misses the exit (the car does not follow the route's turn)
+    root["in_roundabout"] = torch.tensor(True)
+    turn = torch.full((12,), int(Instruction.TURN_LEFT))
+    late_turn = torch.cat([torch.zeros(8, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
+    pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn, late_turn]))
+    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
+    assert bool((pos[:, 2, -1, 1].abs() < 1.0).all())
 
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
     """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which
