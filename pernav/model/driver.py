@@ -21,8 +21,9 @@ traffic):
   wrong turn); whether it goes straight is read from the direction the route leaves by past the junction's box;
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
-  (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring,
-  and a sequence with no "turn" means to stay;
+  (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
+  the route takes that exit where the navigation's own plan (``explore_future``) says a "turn", else a sequence with
+  no "turn" means to stay;
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -193,13 +194,17 @@ def _junction_ahead(root: TensorDictBase, route: torch.Tensor) -> tuple[float, f
     return s_first, (_next_turn(route, s_first) if through else s_first), through, ring, in_ring
 
 
-def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool) -> tuple[torch.Tensor, torch.Tensor]:
+def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool, exit_ahead: bool
+                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(first, first_turn)`` at a roundabout: on the way in no branch is chosen and the driver sees the ring and
-    slows for it (both known from the start); on the ring a "turn" takes the exit ahead, and a sequence with no "turn"
-    means to pass it (the car stays on the ring, the route)."""
+    slows for it (both known from the start); on the ring a "turn" takes the exit ahead. Where the route takes that
+    exit (``exit_ahead``) a "turn" too late for it leaves the car on the ring, a miss; elsewhere a sequence with no
+    "turn" means to pass it (the car stays on the ring, the route)."""
     if not in_ring:
         known = torch.full_like(first, -math.inf)
         return known, known
+    if exit_ahead:
+        return first_turn, first_turn
     stay = torch.where(torch.isinf(first_turn), torch.full_like(first, -math.inf), first_turn)
     return stay, stay
 
@@ -233,6 +238,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     hist = root["history"].double()
     route = root["route_ahead"].double()
     s_first, s_junction, through, ring, in_ring = _junction_ahead(root, route)
+    # on the ring, the exit ahead is the route's when the navigation's own plan (explore's next prompts) turns there
+    plan = root["explore_future"] if "explore_future" in root.keys() else torch.zeros(0, dtype=torch.long)
+    exit_ahead = bool(torch.isin(plan.long(), torch.tensor(TURNS)).any())
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()
@@ -245,7 +253,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
     first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
     if ring:
-        first, first_turn = _at_roundabout(first, first_turn, in_ring)
+        first, first_turn = _at_roundabout(first, first_turn, in_ring, exit_ahead)
     s = torch.zeros(M, N, dtype=torch.float64)
     v = torch.full((M, N), v0, dtype=torch.float64)
     committed = torch.zeros(M, N, dtype=torch.bool)

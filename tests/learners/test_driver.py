@@ -175,6 +175,10 @@ def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_o
     pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn, late_turn]))
     assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
     assert bool((pos[:, 2, -1, 1].abs() < 1.0).all())
+    # where the navigation's own plan turns at the exit ahead, it is the route's: "keep left" there misses it
+    root["explore_future"] = torch.cat([torch.zeros(2, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
+    pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn]))
+    assert bool((pos[:, 0, -1, 1].abs() < 1.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
 
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
     """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which

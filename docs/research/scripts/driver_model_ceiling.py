@@ -70,6 +70,7 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--prepared", type=float, default=DriverParams().prepared,
                     help="the tau_speeds row's share of its speed a driver slows to on a prepare")
+    ap.add_argument("--no-grid", action="store_true", help="skip best_response (its grid is most of the time)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     pooled: dict[str, list] = {}
@@ -81,7 +82,8 @@ def main() -> None:
         speeds = dataclasses.replace(own, turn_speed=seen.turn_speed, brake=seen.brake, accel=seen.accel,
                                      prepared=args.prepared)
         # every candidate is a model of the diagnostic's own loop: the same states, seeds and truth
-        grid = [dataclasses.replace(own, **dict(zip(GRID, v, strict=True))) for v in itertools.product(*GRID.values())]
+        grid = [] if args.no_grid else [dataclasses.replace(own, **dict(zip(GRID, v, strict=True)))
+                                        for v in itertools.product(*GRID.values())]
         models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds,
                   **{f"grid{i}": p for i, p in enumerate(grid)}}
         div = approach_divergences(driver, args.town, {k: (DriverImaginedEnv([p]), None) for k, p in models.items()},
@@ -89,17 +91,19 @@ def main() -> None:
         true = div["true"]
         if not len(true):
             continue
-        errors = [float(((div[f"grid{i}"] - true) ** 2).mean()) for i in range(len(grid))]
-        k = int(np.argmin(errors))  # the first of equal errors
-        best = grid[k]
         preds = {"prior": div["prior"], "true_params": div["true_params"], "tau_speeds": div["tau_speeds"],
-                 **({"ceiling": div["ceiling"]} if args.ceiling else {}), "best_response": div[f"grid{k}"]}
+                 **({"ceiling": div["ceiling"]} if args.ceiling else {})}
+        best = None
+        if grid:
+            errors = [float(((div[f"grid{i}"] - true) ** 2).mean()) for i in range(len(grid))]
+            k = int(np.argmin(errors))  # the first of equal errors
+            best, preds["best_response"] = grid[k], div[f"grid{k}"]
         pooled.setdefault("true", []).append(true)
         for k, v in preds.items():
             pooled.setdefault(k, []).append(v)
         rows[driver] = {"states": len(true), "true_mean": [round(float(x), 2) for x in true.mean(0)],
                         "cruise": round(cruise, 2), "read_from_tau": seen.to_dict(),
-                        "best_response_params": {k: getattr(best, k) for k in GRID},
+                        **({"best_response_params": {k: getattr(best, k) for k in GRID}} if best else {}),
                         **{k: figures(true, v) for k, v in preds.items()}}
         print(driver, json.dumps(rows[driver]), flush=True)
     cat = {k: np.concatenate(v) for k, v in pooled.items()}
