@@ -194,19 +194,13 @@ def _junction_ahead(root: TensorDictBase, route: torch.Tensor) -> tuple[float, f
     return s_first, (_next_turn(route, s_first) if through else s_first), through, ring, in_ring
 
 
-def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool, exit_ahead: bool
-                   ) -> tuple[torch.Tensor, torch.Tensor]:
+def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool) -> tuple[torch.Tensor, torch.Tensor]:
     """``(first, first_turn)`` at a roundabout: on the way in no branch is chosen and the driver sees the ring and
-    slows for it (both known from the start); on the ring a "turn" takes the exit ahead. Where the route takes that
-    exit (``exit_ahead``) a "turn" too late for it leaves the car on the ring, a miss; elsewhere a sequence with no
-    "turn" means to pass it (the car stays on the ring, the route)."""
+    slows for it (both known from the start); on the ring only a "turn" chooses: it takes the exit ahead."""
     if not in_ring:
         known = torch.full_like(first, -math.inf)
         return known, known
-    if exit_ahead:
-        return first_turn, first_turn
-    stay = torch.where(torch.isinf(first_turn), torch.full_like(first, -math.inf), first_turn)
-    return stay, stay
+    return first_turn, first_turn
 
 
 def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor,
@@ -238,9 +232,10 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     hist = root["history"].double()
     route = root["route_ahead"].double()
     s_first, s_junction, through, ring, in_ring = _junction_ahead(root, route)
-    # on the ring, the exit ahead is the route's when the navigation's own plan (explore's next prompts) turns there
+    # on the ring, the exit ahead is the route's when the navigation's own plan (explore's next prompts) turns there;
+    # where the route passes it, a turn in effect when the driver commits leaves the route (a wrong exit), none keeps to it
     plan = root["explore_future"] if "explore_future" in root.keys() else torch.zeros(0, dtype=torch.long)
-    exit_ahead = bool(torch.isin(plan.long(), torch.tensor(TURNS)).any())
+    passing = in_ring and not bool(torch.isin(plan.long(), torch.tensor(TURNS)).any())
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()
@@ -253,7 +248,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
     first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
     if ring:
-        first, first_turn = _at_roundabout(first, first_turn, in_ring, exit_ahead)
+        first, first_turn = _at_roundabout(first, first_turn, in_ring)
     s = torch.zeros(M, N, dtype=torch.float64)
     v = torch.full((M, N), v0, dtype=torch.float64)
     committed = torch.zeros(M, N, dtype=torch.bool)
@@ -275,7 +270,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
                 wrong = torch.where(at_first, first <= t, wrong)
                 passed = passed | at_first
             inside = (~committed) & (s_junction - s <= commit_distance)
-            taken = torch.where(inside, first <= t, taken)
+            taken = torch.where(inside, (first <= t) ^ passing, taken)
             committed = committed | inside
             d = s_junction - s
             before = d > 0

@@ -167,14 +167,14 @@ def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_o
     pos, _ = env.imagine(root, torch.stack([now, late]))
     # the driver enters the ring either way and slows for it whatever it heard: the same drive
     assert torch.allclose(pos[:, 0], pos[:, 1]) and bool((pos[:, :, -1, 1] > 10.0).all())
-    # on the ring: "keep left" (no "turn") stays on the route; a "turn" in effect when it commits takes the exit ahead;
-    # one said too late for it misses the exit (the car does not follow the route's turn)
+    # on the ring, where the navigation's plan says no "turn" the route passes the exit ahead: "keep left" and a "turn"
+    # said too late for it stay on the route; a "turn" in effect when the driver commits takes the exit (leaves it)
     root["in_roundabout"] = torch.tensor(True)
     turn = torch.full((12,), int(Instruction.TURN_LEFT))
     late_turn = torch.cat([torch.zeros(8, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
     pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn, late_turn]))
-    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
-    assert bool((pos[:, 2, -1, 1].abs() < 1.0).all())
+    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 2, -1, 1] > 10.0).all())
+    assert bool((pos[:, 1, -1, 1].abs() < 1.0).all())
     # where the navigation's own plan turns at the exit ahead, it is the route's: "keep left" there misses it
     root["explore_future"] = torch.cat([torch.zeros(2, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
     pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn]))
