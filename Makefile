@@ -13,11 +13,11 @@ setup: $(STAMP)
 # instead of pulling a multi-GB CUDA build from PyPI's default index.
 # uv installs the same versions as pip in 8 s instead of 51 on a fresh machine. It does not compile bytecode up front
 # (that took 15-35 s, for every module of torch, ray and the rest); instead the commands below unexport
-# PYTHONDONTWRITEBYTECODE, so that the first process to import a module writes its bytecode and every later one (pytest's
-# workers, the CLI's and Ray's subprocesses) reads it: 10-17 s once, for the modules actually imported. On the machine
-# where up-front compiling took 15 s, a fresh clone's `make test` took the same either way (3:49 against 3:52). uv does not read
-# pip's configuration, so pip's wheel folders are passed on. Where uv cannot be installed or cannot reach an index, pip
-# does it all as before.
+# PYTHONDONTWRITEBYTECODE, so that the first process to import a module writes its bytecode and every later one
+# (pytest's workers, the CLI's and Ray's subprocesses) reads it: 10-17 s once, for the modules actually imported. On the machine
+# where up-front compiling took 15 s, a fresh clone's `make test` took the same either way (3:49 against 3:52). uv does
+# not read pip's configuration, so pip's wheel folders are passed on. Where uv cannot be installed or cannot reach an
+# index, pip does it all as before.
 unexport PYTHONDONTWRITEBYTECODE
 WHEELS ?= $(or $(PIP_FIND_LINKS),$(wildcard /opt/wheels))
 UV := $(BIN)/uv pip install -q --python $(BIN)/python $(foreach w,$(WHEELS),--find-links $(w))
