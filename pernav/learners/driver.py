@@ -325,12 +325,11 @@ def adapt_phi(prior: DriverPrior, evidence: Evidence, start: Estimate | None = N
 
 
 def meta_train(prior: DriverPrior, rounds: list[tuple[Evidence, Evidence]], steps: int = 60, lr: float = 0.05,
-               batch: int = 16, seed: int = 0, floor: tuple[float, float] | None = None) -> DriverPrior:
+               batch: int = 16, seed: int = 0) -> DriverPrior:
     """Follow-The-Meta-Leader on ``P``'s centre and spread: the minimizer, over every ``(tau, other drives)`` pair so
     far, of the other drives' :func:`nll` under ``U(P, tau)`` (differentiated through the Newton step), per item of
     evidence: ``steps`` Adam steps on ``batch`` pairs drawn (seeded) each step, every pair when there are fewer.
-    Starts from ``prior``; pairs with no evidence to score are skipped. ``floor``: the least spread ``P`` may learn
-    (the population's own: a narrower one makes ``U`` keep a driver near the centre whatever ``tau`` says).
+    Starts from ``prior``; pairs with no evidence to score are skipped.
 
     >>> import torch
     >>> prior = DriverPrior.population((0.0, 0.4), (2.0, 0.5))
@@ -345,9 +344,8 @@ def meta_train(prior: DriverPrior, rounds: list[tuple[Evidence, Evidence]], step
     log_spread = prior.spread().log().clone().requires_grad_(True)
     optimizer = torch.optim.Adam([centre, log_spread], lr=lr)
     generator = torch.Generator().manual_seed(int(seed))
-    least = torch.tensor(floor if floor is not None else (MIN_SD, MIN_SD), dtype=torch.float64).clamp(min=MIN_SD)
     for _ in range(steps):
-        spread = torch.maximum(log_spread.exp(), least)
+        spread = log_spread.exp().clamp(min=MIN_SD)
         total = centre.new_zeros(())
         chosen = pairs if len(pairs) <= batch else [
             pairs[int(i)] for i in torch.randperm(len(pairs), generator=generator)[:batch]]
@@ -363,7 +361,7 @@ def meta_train(prior: DriverPrior, rounds: list[tuple[Evidence, Evidence]], step
         optimizer.zero_grad()
         (total / count).backward()
         optimizer.step()
-    sd = torch.maximum(log_spread.detach().exp(), least)
+    sd = log_spread.detach().exp().clamp(min=MIN_SD)
     return replace(prior, mean=tuple(centre.detach().tolist()), sd=tuple(sd.tolist()))
 
 

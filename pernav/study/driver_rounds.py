@@ -95,8 +95,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
     """The offline phase: ``P0``, the population's statistics (its drivers' ``log R`` and ``D``, known: they are
     simulated; one prompt's spread and the slowing on a "prepare" from their labelled answers; the belief's detectors
     and error rates), and ``P``,
-    ``P0`` meta-trained on the same drivers (each drive's first half adapts, its second half scores), its spread no
-    narrower than ``P0``'s."""
+    ``P0`` meta-trained on the same drivers (each drive's first half adapts, its second half scores)."""
     prior = belief_model["prior"]
     decision = prior["decision"]
     log_r = torch.tensor([math.log(d.reaction_time) for d in drives], dtype=torch.float64)
@@ -115,7 +114,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
                             step["junction"], step["missed"])
         tracker.finish()
         pairs.append(belief.evidence.halves())
-    meta = meta_train(p0, pairs, floor=p0.sd)
+    meta = meta_train(p0, pairs)
     return {"detector": belief_model["detector"], "swerve": belief_model["swerve"], "prior0": p0.to_dict(),
             "prior": meta.to_dict(), "offline_pairs": [(a.state(), b.state()) for a, b in pairs]}
 
@@ -186,6 +185,4 @@ class DriverState:
         pairs = [(Evidence.from_state(a), Evidence.from_state(b))
                  for a, b in [*self.data["offline_pairs"], *self.data["online_pairs"]]]
         seed = len(self.data["online_pairs"])  # each round its own draws, the same in every run
-        floor = DriverPrior.from_dict(self.data["prior0"]).sd  # the population's spread: P never narrower
-        self.data["prior"] = meta_train(DriverPrior.from_dict(self.data["prior"]), pairs, steps=20, seed=seed,
-                                        floor=floor).to_dict()
+        self.data["prior"] = meta_train(DriverPrior.from_dict(self.data["prior"]), pairs, steps=20, seed=seed).to_dict()

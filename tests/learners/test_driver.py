@@ -84,22 +84,6 @@ def test_ftml_moves_the_meta_centre_toward_the_drivers_seen_and_scores_u_not_the
     assert after < before
 
 
-
-def test_ftml_narrows_the_spread_where_tau_misleads_but_never_below_the_floor():
-    prior = DriverPrior.population((0.0, 0.4), (2.0, 0.5))
-    delays = torch.arange(0.3, 9.0, 0.1, dtype=torch.float64)
-
-    def answers_at(seconds: float) -> Evidence:
-        probs = torch.zeros(len(delays), dtype=torch.float64)
-        probs[int(round((seconds - 0.3) / 0.1))] = 1.0
-        return Evidence([(delays, probs, 0.0)] * 3)
-
-    # tau says slow or quick, the driver's other drives say average: U should trust tau less
-    pairs = [(answers_at(3.0), answers_at(1.0)), (answers_at(0.4), answers_at(1.0))] * 3
-    assert meta_train(prior, pairs, steps=60).sd[0] < 0.2
-    floored = meta_train(prior, pairs, steps=60, floor=prior.sd)
-    assert floored.sd[0] >= prior.sd[0] - 1e-12 and floored.sd[1] >= prior.sd[1] - 1e-12
-
 def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_after_it_brakes_later_and_harder():
     from tensordict import TensorDict
 
