@@ -90,6 +90,18 @@ def _prepared(drives: list[LabelledDrive]) -> float:
     return sum(shares) / len(shares) if shares else DriverParams().prepared
 
 
+def labelled_evidence(drive: LabelledDrive, prior: DriverPrior, detector: Any, swerve: Any) -> Evidence:
+    """What ``U`` reads from an offline drive (its answers and junction outcomes), as a round reads ``tau``."""
+    belief = DriverBelief(prior)
+    tracker = DriverTracker(detector, belief, swerve)
+    tracker.reset()
+    for step in drive.steps:
+        tracker.observe(step["instruction"], step["played"], step["prompt_end"], step["frames"], step["time"],
+                        step["junction"], step["missed"])
+    tracker.finish()
+    return belief.evidence
+
+
 def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise: float, outlier: float
                ) -> dict[str, Any]:
     """The offline phase: ``P0``, the population's statistics (its drivers' ``log R`` and ``D``, known: they are
@@ -104,16 +116,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
                      sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
                      false=float(decision["false"]), prepared=_prepared(drives))
     detector, swerve = detectors(belief_model)
-    pairs = []
-    for d in drives:
-        belief = DriverBelief(p0)
-        tracker = DriverTracker(detector, belief, swerve)
-        tracker.reset()
-        for step in d.steps:
-            tracker.observe(step["instruction"], step["played"], step["prompt_end"], step["frames"], step["time"],
-                            step["junction"], step["missed"])
-        tracker.finish()
-        pairs.append(belief.evidence.halves())
+    pairs = [labelled_evidence(d, p0, detector, swerve).halves() for d in drives]
     meta = meta_train(p0, pairs)
     return {"detector": belief_model["detector"], "swerve": belief_model["swerve"], "prior0": p0.to_dict(),
             "prior": meta.to_dict(), "offline_pairs": [(a.state(), b.state()) for a, b in pairs]}

@@ -16,7 +16,8 @@ import torch
 
 from pernav.learners.answers import labelled_drives
 from pernav.learners.belief import detectors
-from pernav.learners.driver import DriverBelief, DriverPrior, DriverTracker, adapt_phi
+from pernav.learners.driver import DriverPrior, adapt_phi
+from pernav.study.driver_rounds import labelled_evidence
 from pernav.study.finished import FinishedStudy
 
 
@@ -34,16 +35,7 @@ def main() -> None:
     print(f"P: centre {P.mean}, spread {P.sd}; P0: centre {P0.mean}, spread {P0.sd}")
     drives = labelled_drives(args.town, args.drivers, population_seed=args.population_seed, seed=args.seed)
     detector, swerve = detectors(state.data)
-    evidence = []
-    for d in drives:  # what U reads from each drive, as a round reads tau
-        belief = DriverBelief(P)
-        tracker = DriverTracker(detector, belief, swerve)
-        tracker.reset()
-        for step in d.steps:
-            tracker.observe(step["instruction"], step["played"], step["prompt_end"], step["frames"], step["time"],
-                            step["junction"], step["missed"])
-        tracker.finish()
-        evidence.append(belief.evidence)
+    evidence = [labelled_evidence(d, P, detector, swerve) for d in drives]  # what U reads, as a round reads tau
     true = np.log([d.reaction_time for d in drives])
     for name, prior in {"P": P, "P0": P0, "P with P0's spread": dataclasses.replace(P, sd=(P0.sd[0], P.sd[1]))}.items():
         est = np.array([adapt_phi(prior, e).phi[0] for e in evidence])
