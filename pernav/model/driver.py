@@ -22,8 +22,8 @@ traffic):
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
-  the route takes that exit where the navigation's own plan (``explore_future``) says a "turn", else a sequence with
-  no "turn" means to stay;
+  the route takes that exit where the navigation's own plan (``explore_future``) says a "turn" (one too late misses
+  it), else it passes it (a "turn" in effect there is a wrong exit);
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 

@@ -25,7 +25,7 @@ import torch
 
 from pernav.env.navigation import FRAME_KEYS
 from pernav.learners.answers import LabelledDrive
-from pernav.learners.belief import detectors, frame_series
+from pernav.learners.belief import AnswerDetector, detectors, frame_series
 from pernav.learners.driver import (
     DriverBelief,
     DriverPrior,
@@ -36,6 +36,7 @@ from pernav.learners.driver import (
     meta_train,
     read_response,
 )
+from pernav.learners.outcomes import SwerveDetector
 from pernav.model.driver import DriverParams
 from pernav.world.constants import PREPARES, TURNS
 
@@ -90,7 +91,8 @@ def _prepared(drives: list[LabelledDrive]) -> float:
     return sum(shares) / len(shares) if shares else DriverParams().prepared
 
 
-def labelled_evidence(drive: LabelledDrive, prior: DriverPrior, detector: Any, swerve: Any) -> Evidence:
+def labelled_evidence(drive: LabelledDrive, prior: DriverPrior, detector: AnswerDetector,
+                      swerve: SwerveDetector | None) -> Evidence:
     """What ``U`` reads from an offline drive (its answers and junction outcomes), as a round reads ``tau``."""
     belief = DriverBelief(prior)
     tracker = DriverTracker(detector, belief, swerve)
