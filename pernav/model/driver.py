@@ -79,6 +79,7 @@ JUNCTION_SPAN = 9.0  # m either side of a point over which the route's turn ther
 # m past a junction's entry (``distance_to_junction``) where the route has left it: a turn's arc through a junction
 # box is 15-25 m long, so the direction the route leaves by is measured past it, not at the entry
 JUNCTION_ARC = 24.0
+RING_REACH = 50.0  # m: the farthest a ring's exit ahead lies from a car on the ring
 
 
 @dataclass(frozen=True)
@@ -122,9 +123,11 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
 
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``([M, N], [M, N])``: when the first "turn" and the first "prepare" for the junction ahead take effect
-    (s from now; ``inf``: none), for each row's reaction time ``reaction`` ``[M, 1]`` and each sequence."""
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
+    junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
+    ``[M, 1]`` and each sequence; and each played "turn"'s window in effect ``[M, N, T]``: from its effect until the
+    next "turn" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if none)."""
     N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
@@ -142,9 +145,16 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
     turn = torch.isin(actions, torch.tensor(TURNS)).unsqueeze(0)
-    first_turn = torch.where(turn, effect, torch.full_like(effect, math.inf)).min(-1).values  # [M, N]
+    turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
+    first_turn = turn_from.min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
-    return first_turn, first_prepare
+    # a "turn" holds until the next "turn" or "keep left" is said: the driver acts on the latest it heard
+    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, Instruction.KEEP_LEFT)))  # [N, T]
+    said = torch.where(supersedes, starts.expand(N, -1), torch.full_like(effect[0], math.inf))
+    # the first superseding start after each prompt's own: a reversed running minimum over the later ones
+    later = torch.cat([said[:, 1:], torch.full_like(said[:, :1], math.inf)], 1)
+    turn_until = later.flip(1).cummin(1).values.flip(1)  # [N, T]
+    return first_turn, first_prepare, turn_from, turn_until.unsqueeze(0).expand_as(turn_from)
 
 
 def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -188,19 +198,11 @@ def _junction_ahead(root: TensorDictBase, route: torch.Tensor) -> tuple[float, f
     point it turns at), whether it goes straight through the first, and the navigation's own roundabout flags."""
     keys = root.keys()
     s_first = float(root["distance_to_junction"]) if "distance_to_junction" in keys else FAR
-    in_ring = "in_roundabout" in keys and bool(root["in_roundabout"])
+    # in a ring's box with the next manoeuvre beyond the ring's reach, the car is leaving it: the next is a junction
+    in_ring = "in_roundabout" in keys and bool(root["in_roundabout"]) and s_first < RING_REACH
     ring = in_ring or ("near_roundabout" in keys and bool(root["near_roundabout"]))
     through = not ring and _goes_straight(route, s_first)
     return s_first, (_next_turn(route, s_first) if through else s_first), through, ring, in_ring
-
-
-def _at_roundabout(first: torch.Tensor, first_turn: torch.Tensor, in_ring: bool) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(first, first_turn)`` at a roundabout: on the way in no branch is chosen and the driver sees the ring and
-    slows for it (both known from the start); on the ring only a "turn" chooses: it takes the exit ahead."""
-    if not in_ring:
-        known = torch.full_like(first, -math.inf)
-        return known, known
-    return first_turn, first_turn
 
 
 def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, taken: torch.Tensor, wrong: torch.Tensor,
@@ -239,66 +241,113 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()
-    R, D, sigma, v_turn, brake, cruise, prepared, accel, follow, z = (drivers[:, k].reshape(M, 1) for k in range(10))
+    R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
+    follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
-    cruise = cruise.expand(M, N)
-    first_turn, first_prepare = _effects(hist, sequences, reaction, s_first, v0)  # the prompts heard by the next one
+    # the prompts heard by the next one
+    first_turn, first_prepare, turn_from, turn_until = _effects(hist, sequences, reaction, s_first, v0)
     # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
-    first = torch.minimum(first_turn, torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf)))
-    if ring:
-        first, first_turn = _at_roundabout(first, first_turn, in_ring)
+    prepared_by = torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf))
+    if ring and not in_ring:  # on the way in no branch is chosen; the driver sees the ring and slows for it
+        first_turn = prepared_by = torch.full_like(first_turn, -math.inf)
+    elif in_ring:  # on the ring only a "turn" chooses: it takes the exit ahead
+        prepared_by = torch.full_like(prepared_by, math.inf)
+
+    def turns_at(point: torch.Tensor | float, t: float, prepare: bool = True) -> torch.Tensor:
+        """``[M, N]``: whether the latest "turn" the driver heard (or, with ``prepare``, a followed "prepare") is in
+        effect when it passes ``point`` (m). ``s`` is where it was at ``t``: the moment is interpolated between steps
+        (a "keep left" said a moment after the commit no longer counts)."""
+        at = (t - (s - point) / v.clamp(min=0.1)).clamp(min=t - dt).unsqueeze(-1)
+        turn = ((turn_from <= at) & (at < turn_until)).any(-1)
+        return turn | (prepared_by <= at[..., 0]) if prepare else turn
+
     s = torch.zeros(M, N, dtype=torch.float64)
     v = torch.full((M, N), v0, dtype=torch.float64)
-    committed = torch.zeros(M, N, dtype=torch.bool)
-    taken = torch.ones(M, N, dtype=torch.bool)
-    wrong = torch.zeros(M, N, dtype=torch.bool)  # turned where the route goes straight through
-    commit_distance = torch.clamp(D * v0, min=MIN_COMMIT)  # [M, 1]
-    # already committed before the root: decided, unknown to us
-    passed = torch.full((M, N), bool(s_first - commit_distance.min() <= 0))
-    if s_junction - commit_distance.min() <= 0:
-        committed[:] = True
+    start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
+    # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it
+    # turns at: followed if a turn is in effect (on a ring where the route passes the exit, left if one is)
+    first = _Decision(s_first, (M, N), s_first <= start, swerve=True, chosen=False) if through else None
+    junction = _Decision(s_junction, (M, N), s_junction <= start, swerve=not ring, chosen=True, invert=passing)
     dt = 1.0 / SUBSTEPS
     out_s, out_taken, out_v = [], [], []
-    inf = torch.full((M, N), math.inf, dtype=torch.float64)
     for h in range(H):
         for k in range(SUBSTEPS):
             t = h + (k + 1) * dt
-            if through:  # a turn in effect at the junction the route goes straight through is taken there
-                at_first = (~passed) & (s_first - s <= commit_distance)
-                wrong = torch.where(at_first, first <= t, wrong)
-                passed = passed | at_first
-            inside = (~committed) & (s_junction - s <= commit_distance)
-            taken = torch.where(inside, (first <= t) ^ passing, taken)
-            committed = committed | inside
+            # the driver commits D seconds before the junction at its speed then (a braking car commits later)
+            commit_distance = torch.clamp(D * v, min=MIN_COMMIT)  # [M, N]
+            for decision in (first, junction):
+                if decision is not None:
+                    decision.step(s, commit_distance, turns_at, t - dt)
+            taken = junction.chosen
             d = s_junction - s
-            before = d > 0
             turning = (first_turn <= t) & taken
-            preparing = (first_prepare <= t) & before
-            # the speed the driver means to reach the junction at: its turn speed once it knows it turns, halfway
-            # to its cruise on a "prepare" alone; it brakes for it only as late as its comfortable deceleration allows
-            arrive = torch.where(turning & before, v_turn.expand(M, N), inf)
-            arrive = torch.where(preparing & ~turning, (v_turn + cruise) / 2, arrive)
-            reach = torch.sqrt(arrive.clamp(max=FAR) ** 2 + 2 * brake * d.clamp(min=0.0))
-            reach = torch.where(torch.isinf(arrive), inf, reach)
-            target = torch.where(preparing, torch.minimum(cruise, prepared * cruise), cruise)
-            target = torch.where(turning & ~before & (d > -TURN_LENGTH), torch.minimum(target, v_turn), target)
-            target = torch.minimum(target, reach)
-            # a late-known turn is braked for harder than comfortably
-            down = torch.where(reach < v, HARD_BRAKE * brake, brake).expand_as(v)
-            v = torch.where(v > target, torch.maximum(v - down * dt, target), torch.minimum(v + accel * dt, target))
+            preparing = (first_prepare <= t) & (d > 0)
+            # on the ring the car holds its speed up to the exit ahead, and past it if it stays on the ring
+            hold = ((d > -TURN_LENGTH) | ~(taken ^ passing)) if in_ring else None
+            v = _next_speed(v, d, turning, preparing, hold, v0, drivers, dt)
             s = s + v * dt
         out_s.append(s.clone())
         out_taken.append(taken.clone())
         out_v.append(v.clone())
     s_all = torch.stack(out_s, -1)  # [M, N, H]
     taken_all = torch.stack(out_taken, -1)
+    wrong = first.chosen if first is not None else torch.zeros(M, N, dtype=torch.bool)
     pos = _positions(route, s_junction, s_all, taken_all, wrong, s_first)
     # the navigation's goal: where the car would be one step on at its speed, along the route
     v_all = torch.stack(out_v, -1)
     goal = _route_at(route, s_all + torch.clamp(v_all * GOAL_LOOKAHEAD_S, min=WAYPOINT_SPACING))
     return pos.float(), goal.float()
+
+
+class _Decision:
+    """One junction's branch, as the driver chooses it: at its commit ``D`` s (at its speed then) before the junction
+    ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
+    after the commit and before the car reaches the junction is swerved into. ``chosen`` ``[M, N]``: turned (with
+    ``invert``: did not); its initial value where the junction was decided before the root (``decided``)."""
+
+    def __init__(self, at: float, shape: tuple[int, int], decided: bool, swerve: bool, chosen: bool,
+                 invert: bool = False) -> None:
+        self.at, self.swerve, self.invert = at, swerve, invert
+        self.committed = torch.full(shape, decided)
+        self.reached = torch.full(shape, at <= 0)
+        self.chosen = torch.full(shape, chosen)
+
+    def step(self, s: torch.Tensor, commit_distance: torch.Tensor, turns_at, t: float) -> None:
+        """The car at ``s`` (at time ``t``) moves on; ``turns_at(point, t, prepare)`` says what is in effect there."""
+        inside = (~self.committed) & (self.at - s <= commit_distance)
+        if bool(inside.any()):
+            self.chosen = torch.where(inside, turns_at(self.at - commit_distance, t) ^ self.invert, self.chosen)
+        self.committed = self.committed | inside
+        if self.swerve:
+            entering = (~self.reached) & (self.at - s <= 0)
+            if bool(entering.any()):
+                self.chosen = self.chosen | (entering & turns_at(self.at, t, prepare=False))
+            self.reached = self.reached | entering
+
+
+def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, preparing: torch.Tensor,
+                hold: torch.Tensor | None, v0: float, drivers: torch.Tensor, dt: float) -> torch.Tensor:
+    """``[M, N]``: the speed ``dt`` on from ``v``, ``d`` m before the junction: the driver means to reach it at its
+    turn speed once it knows it turns, halfway to its cruise on a "prepare" alone, and brakes for it only as late as
+    its comfortable deceleration allows (harder for a turn it learns of too late); ``hold`` holds ``v0``."""
+    M = drivers.shape[0]
+    v_turn, brake, cruise, prepared, accel = (drivers[:, k].reshape(M, 1) for k in range(3, 8))
+    cruise = cruise.expand_as(v)
+    before = d > 0
+    inf = torch.full_like(v, math.inf)
+    arrive = torch.where(turning & before, v_turn.expand_as(v), inf)
+    arrive = torch.where(preparing & ~turning, (v_turn + cruise) / 2, arrive)
+    reach = torch.sqrt(arrive.clamp(max=FAR) ** 2 + 2 * brake * d.clamp(min=0.0))
+    reach = torch.where(torch.isinf(arrive), inf, reach)
+    target = torch.where(preparing, torch.minimum(cruise, prepared * cruise), cruise)
+    target = torch.where(turning & ~before & (d > -TURN_LENGTH), torch.minimum(target, v_turn), target)
+    target = torch.minimum(target, reach)
+    if hold is not None:
+        target = torch.where(hold, torch.full_like(target, v0), target)
+    down = torch.where(reach < v, HARD_BRAKE * brake, brake).expand_as(v)
+    return torch.where(v > target, torch.maximum(v - down * dt, target), torch.minimum(v + accel * dt, target))
 
 
 class DriverImaginedEnv(EnvBase):

@@ -180,6 +180,45 @@ def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_o
     pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn]))
     assert bool((pos[:, 0, -1, 1].abs() < 1.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
 
+def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn_it_heard_before():
+    from tensordict import TensorDict
+
+    # the driver heard a "turn" 3 s ago (in effect now); the route passes the exit ahead (the plan says no "turn")
+    history = torch.zeros(5, 21)
+    history[:, 3] = 8.0
+    history[1, 14 + int(Instruction.TURN_LEFT)] = 1.0
+    root = TensorDict({"history": history, "route_ahead": _arc_route(15.0), "distance_to_junction": torch.tensor(30.0),
+                       "near_roundabout": torch.tensor(True), "in_roundabout": torch.tensor(True)}, [])
+    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, cruise=8.0)], quantiles=(0.0,))
+    keep = int(Instruction.KEEP_LEFT)
+    now = torch.full((12,), keep)
+    late = torch.cat([torch.zeros(3, dtype=torch.long), torch.full((9,), keep)])
+    pos, _ = env.imagine(root, torch.stack([now, late]))
+    # said now, it supersedes the "turn" before the driver commits (~1.8 s on): it stays on the ring, the route; said
+    # 3 s later, the "turn" is still the latest when it commits: it takes the exit (leaves the route)
+    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 1, -1, 1].abs() < 1.0).all())
+
+
+def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_until_the_car_reaches_the_junction():
+    from tensordict import TensorDict
+
+    # 10 m/s, a left turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now); a "turn"
+    # said now is heard at 1.2 s and takes effect a reaction time later
+    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)
+    route[25:, 1] = (torch.arange(71.0) + 1) * 3
+    route[25:, 0] = route[24, 0]
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+    turn = torch.full((1, 12), int(Instruction.TURN_LEFT))
+    ends = {}
+    for reaction in (2.4, 4.4, 4.6):  # effect at 3.6 s (before the commit), 5.6 s (after it) and 5.8 s (too late)
+        env = DriverImaginedEnv([DriverParams(reaction_time=reaction, decision_time=2.0, sigma=0.001, cruise=10.0)],
+                                quantiles=(0.0,))
+        ends[reaction] = float(env.imagine(root, turn)[0][0, 0, -1, 1])
+    assert ends[2.4] > 5.0 and ends[4.4] > 5.0 and abs(ends[4.6]) < 1.0
+
+
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
     """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which
     the car slows from 10 m/s to ``slowed_to`` (``None``: it never took effect), then a "turn" (played at 6 s)
