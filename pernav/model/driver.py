@@ -122,12 +122,14 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return route[i] + frac * (route[i + 1] - route[i])
 
 
-def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float
-             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float,
+             dropped_before: float = -math.inf) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
     ``[M, 1]`` and each sequence; and each played "turn"'s window in effect ``[M, N, T]``: from its effect until the
-    next "turn" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if none)."""
+    next "turn" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if none).
+    A "turn" or "prepare" said before ``dropped_before`` (s) does not count: the driver drops what it heard when it
+    enters a junction (it was meant for that one)."""
     N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
@@ -141,10 +143,11 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     # a prompt of the history is for the junction ahead only if it was said within reach of it (else it was the last
     # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back
     reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
-    effect = torch.where((played & reach).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
     turn = torch.isin(actions, torch.tensor(TURNS)).unsqueeze(0)
+    dropped = (turn | prepare)[0] & (starts < dropped_before)
+    effect = torch.where((played & reach & ~dropped).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
     first_turn = turn_from.min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
@@ -246,30 +249,25 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
-    # the prompts heard by the next one
-    first_turn, first_prepare, turn_from, turn_until = _effects(hist, sequences, reaction, s_first, v0)
-    # a turn chooses the branch; a "prepare" alone does in the rows that follow one (half of them)
-    prepared_by = torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf))
-    if ring and not in_ring:  # on the way in no branch is chosen; the driver sees the ring and slows for it
-        first_turn = prepared_by = torch.full_like(first_turn, -math.inf)
-    elif in_ring:  # on the ring only a "turn" chooses: it takes the exit ahead
-        prepared_by = torch.full_like(prepared_by, math.inf)
-
-    def turns_at(point: torch.Tensor | float, t: float, prepare: bool = True) -> torch.Tensor:
-        """``[M, N]``: whether the latest "turn" the driver heard (or, with ``prepare``, a followed "prepare") is in
-        effect when it passes ``point`` (m). ``s`` is where it was at ``t``: the moment is interpolated between steps
-        (a "keep left" said a moment after the commit no longer counts)."""
-        at = (t - (s - point) / v.clamp(min=0.1)).clamp(min=t - dt).unsqueeze(-1)
-        turn = ((turn_from <= at) & (at < turn_until)).any(-1)
-        return turn | (prepared_by <= at[..., 0]) if prepare else turn
-
-    s = torch.zeros(M, N, dtype=torch.float64)
-    v = torch.full((M, N), v0, dtype=torch.float64)
+    # the prompts heard by the next junction; where the route goes straight through it, those said before the car
+    # enters it are dropped there, and the ones after are for the junction it turns at
+    heard = _effects(hist, sequences, reaction, s_first, v0)
+    if through:
+        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1)), heard
+    first_turn, first_prepare = heard[:2]
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it
     # turns at: followed if a turn is in effect (on a ring where the route passes the exit, left if one is)
-    first = _Decision(s_first, (M, N), s_first <= start, swerve=True, chosen=False) if through else None
-    junction = _Decision(s_junction, (M, N), s_junction <= start, swerve=not ring, chosen=True, invert=passing)
+    first = _Decision(s_first, (M, N), s_first <= start, heard_first, follow, swerve=True, chosen=False) \
+        if through else None
+    junction = _Decision(s_junction, (M, N), s_junction <= start, heard, follow, swerve=not ring, chosen=True,
+                         invert=passing)
+    if ring and not in_ring:  # on the way in no branch is chosen; the driver sees the ring and slows for it
+        first_turn = junction.prepared_by = torch.full_like(first_turn, -math.inf)
+    elif in_ring:  # on the ring only a "turn" chooses: it takes the exit ahead
+        junction.prepared_by = torch.full_like(first_turn, math.inf)
+    s = torch.zeros(M, N, dtype=torch.float64)
+    v = torch.full((M, N), v0, dtype=torch.float64)
     dt = 1.0 / SUBSTEPS
     out_s, out_taken, out_v = [], [], []
     for h in range(H):
@@ -279,7 +277,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             commit_distance = torch.clamp(D * v, min=MIN_COMMIT)  # [M, N]
             for decision in (first, junction):
                 if decision is not None:
-                    decision.step(s, commit_distance, turns_at, t - dt)
+                    decision.step(s, v, commit_distance, t - dt, dt)
             taken = junction.chosen
             d = s_junction - s
             turning = (first_turn <= t) & taken
@@ -304,26 +302,39 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
 class _Decision:
     """One junction's branch, as the driver chooses it: at its commit ``D`` s (at its speed then) before the junction
     ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
-    after the commit and before the car reaches the junction is swerved into. ``chosen`` ``[M, N]``: turned (with
-    ``invert``: did not); its initial value where the junction was decided before the root (``decided``)."""
+    after the commit and before the car reaches the junction is swerved into. ``heard``: :func:`_effects` of the
+    prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses. ``chosen`` ``[M, N]``: turned
+    (with ``invert``: did not); its initial value where the junction was decided before the root (``decided``)."""
 
-    def __init__(self, at: float, shape: tuple[int, int], decided: bool, swerve: bool, chosen: bool,
-                 invert: bool = False) -> None:
+    def __init__(self, at: float, shape: tuple[int, int], decided: bool, heard: tuple, follow: torch.Tensor,
+                 swerve: bool, chosen: bool, invert: bool = False) -> None:
         self.at, self.swerve, self.invert = at, swerve, invert
+        _, first_prepare, self.turn_from, self.turn_until = heard
+        self.prepared_by = torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf))
         self.committed = torch.full(shape, decided)
         self.reached = torch.full(shape, at <= 0)
         self.chosen = torch.full(shape, chosen)
 
-    def step(self, s: torch.Tensor, commit_distance: torch.Tensor, turns_at, t: float) -> None:
-        """The car at ``s`` (at time ``t``) moves on; ``turns_at(point, t, prepare)`` says what is in effect there."""
+    def turns_at(self, point: torch.Tensor | float, s: torch.Tensor, v: torch.Tensor, t: float, dt: float,
+                 prepare: bool = True) -> torch.Tensor:
+        """``[M, N]``: whether the latest "turn" the driver heard (or, with ``prepare``, a followed "prepare") is in
+        effect when it passes ``point`` (m); it was at ``s`` at ``t``: the moment is interpolated within the last
+        step ``dt`` (a "keep left" said a moment after the commit no longer counts)."""
+        at = (t - (s - point) / v.clamp(min=0.1)).clamp(min=t - dt).unsqueeze(-1)
+        turn = ((self.turn_from <= at) & (at < self.turn_until)).any(-1)
+        return turn | (self.prepared_by <= at[..., 0]) if prepare else turn
+
+    def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float) -> None:
+        """The car, at ``s`` at time ``t`` at speed ``v``, moves on."""
         inside = (~self.committed) & (self.at - s <= commit_distance)
         if bool(inside.any()):
-            self.chosen = torch.where(inside, turns_at(self.at - commit_distance, t) ^ self.invert, self.chosen)
+            chosen = self.turns_at(self.at - commit_distance, s, v, t, dt) ^ self.invert
+            self.chosen = torch.where(inside, chosen, self.chosen)
         self.committed = self.committed | inside
         if self.swerve:
             entering = (~self.reached) & (self.at - s <= 0)
             if bool(entering.any()):
-                self.chosen = self.chosen | (entering & turns_at(self.at, t, prepare=False))
+                self.chosen = self.chosen | (entering & self.turns_at(self.at, s, v, t, dt, prepare=False))
             self.reached = self.reached | entering
 
 
