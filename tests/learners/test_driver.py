@@ -146,6 +146,25 @@ def _arc_route(radius: float) -> torch.Tensor:
     return torch.tensor(pts[:96])
 
 
+def test_a_turn_said_before_the_car_enters_a_junction_it_goes_straight_through_is_dropped_there():
+    from tensordict import TensorDict
+
+    # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then left at
+    # 150 m; a "turn" said at 5 s takes effect at 6.7 s, past the first junction's entry (no wrong turn there)
+    route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)
+    route[56:, 1] = (torch.arange(104.0) + 1) * 3
+    route[56:, 0] = route[55, 0]
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(60.0)}, [])
+    env = DriverImaginedEnv([DriverParams(reaction_time=0.5, sigma=0.01, cruise=10.0)], quantiles=(0.0,))
+    said = torch.stack([torch.cat([torch.zeros(k, dtype=torch.long), torch.full((22 - k,), 1)]) for k in (5, 7)])
+    pos, _ = env.imagine(root, said)
+    # said before the car entered the first junction, the driver dropped it there: it misses the turn at 150 m; said
+    # after, it turns there
+    assert bool((pos[:, 0, -1, 1].abs() < 1.0).all()) and bool((pos[:, 1, -1, 1] > 5.0).all())
+
+
 def test_a_turn_through_a_wide_junction_box_is_a_turn_not_straight_on():
     # a 90-degree turn on a 15 m arc bends less than 30 degrees within 9 m of the box's entry: measured past the box
     for radius in (6.0, 15.0):
