@@ -27,7 +27,7 @@ __all__ = ["PLANNER_KINDS", "PLANNER_DEFAULTS", "build_planner", "env_planning_c
 #: both towns, paired (docs/research/findings.md, "Without delays: the default since 2026-11-24").
 PLANNER_DEFAULTS: dict[str, dict[str, Any]] = {
     "retime": {"horizon": 12, "advance": 6, "delay": 0, "route_weight": 1.0, "progress_weight": 1.0,
-               "margin": 20.0, "rel_margin": 0.05, "agree": 1.0, "max_spread": 2.0, "rel_spread": 0.0},
+               "margin": 20.0, "rel_margin": 0.05, "agree": 1.0, "max_spread": 2.0, "rel_spread": 0.0, "wait": False},
     "paper": {"horizon": 5, "shift": 2, "bonus": 20.0, "beam_speed": 64},
 }
 PLANNER_KINDS = tuple(PLANNER_DEFAULTS)

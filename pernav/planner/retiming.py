@@ -120,6 +120,11 @@ class Departure:
             taken or missed) but not to the metre leave explore; in the default study 0.5 did that and lost more
             than it gained (docs/research/findings.md, "End to end with the paper's one-step adaptation"), so it is
             0 by default. With one row (one model, or one true-model sample) the spread is 0.
+        wait: compare a candidate that plays another action now with the cheapest one that plays explore's action now
+            (explore's plan or one of its re-timings), not with explore's plan alone: only the first action is played
+            and the next decision may still leave explore, so what the planner must beat is waiting a step. Where
+            the car's speed changes, explore's plan (imagined at the speed now) says its prompts at times explore
+            itself would not, and against it alone a prompt now can look far cheaper than it is.
 
     >>> Departure(margin=-1e12, agree=1e-9).rel_margin
     0.05
@@ -130,6 +135,7 @@ class Departure:
     agree: float = 1.0
     max_spread: float | None = 2.0
     rel_spread: float = 0.0
+    wait: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.agree <= 1.0:
@@ -231,8 +237,12 @@ class RetimingPlanner(MPCPlannerBase):
         cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
         spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
-        gain = cost[:, explore:explore + 1] - cost  # [M, N]: > 0 where a candidate beats explore
-        need = self.margin + self.rel_margin * mean[explore].abs()
+        base = explore
+        if self.departure.wait:  # the cheapest candidate that plays explore's action now: waiting a step
+            same = seqs[:, 0] == explore_action
+            base = int(torch.where(same, mean, torch.full_like(mean, float("inf"))).argmin())
+        gain = cost[:, base:base + 1] - cost  # [M, N]: > 0 where a candidate beats the base
+        need = self.margin + self.rel_margin * mean[base].abs()
         ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain

@@ -45,12 +45,14 @@ __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_dri
 DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "adapt_driver_formula")
 #: the constant shifts (steps; > 0 earlier) best_shift chooses from: as far back as the env's plan reaches, 3 ahead
 SHIFTS = (-2, -1, 0, 1, 2, 3)
-#: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
-#: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain)
 PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read (offline)
 MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
+#: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
+#: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain) where waiting a step (the
+#: cheapest candidate that plays explore's action now) costs more
 DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2,
-                                  "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None}}
+                                  "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None,
+                                                "wait": True}}
 
 
 def _sigma(drives: list[LabelledDrive]) -> float:
