@@ -173,6 +173,27 @@ def test_retiming_gate_needs_every_member_to_clear_the_margin_and_scales_the_spr
     assert not leaves((60.0, 50.0), (40.0, 0.0))  # spread 20 m > 2 + 0.5 * 20 m: they disagree on the effect
 
 
+def test_with_wait_a_departure_must_beat_waiting_a_step_not_only_explores_plan():
+    env = ImaginedNavigationEnv(make_world_model(DynamicsModel(hidden=(8,))))
+    root = _root()
+    _, res = RetimingPlanner(env, horizon=4, advance=2, delay=1, departure=EAGER).decide(root)
+    N, e, first = res.candidates.shape[0], res.explore, res.candidates[:, 0]
+    j = next(i for i in range(N) if int(first[i]) != int(first[e]))  # plays another action now
+    w = next(i for i in range(N) if i != e and int(first[i]) == int(first[e]))  # explore's action now, re-timed later
+
+    def chosen(cost_j: float, wait: bool) -> int:
+        cost = torch.full((2, N), 400.0)
+        cost[:, e], cost[:, w], cost[:, j] = 300.0, 100.0, cost_j  # explore's own plan is the dear one
+        planner = RetimingPlanner(env, horizon=4, advance=2, delay=1,
+                                  departure=Departure(margin=20.0, rel_margin=0.0, max_spread=None, wait=wait))
+        planner.costs = lambda *_: (cost, torch.zeros(2, N, 4, 2))
+        return planner.decide(root)[0]
+
+    assert chosen(90.0, wait=False) == int(first[j])  # 210 cheaper than explore's plan
+    assert chosen(90.0, wait=True) == int(first[e])  # but only 10 cheaper than waiting a step: wait
+    assert chosen(50.0, wait=True) == int(first[j])  # 50 cheaper than waiting: leave now
+
+
 def test_retiming_planner_with_21_actions_plans_every_playback():
     env = ImaginedNavigationEnv(make_world_model(DynamicsModel(n_actions=21, hidden=(8,))))
     planner = RetimingPlanner(env, horizon=3, advance=2, delay=1, departure=EAGER)
