@@ -13,17 +13,22 @@ traffic):
   halfway between that and its cruise, which it also slows to a share ``prepared`` of): it brakes for it no earlier
   than its comfortable deceleration ``brake`` needs (harder if it learns of the turn too late), so a prompt that
   takes effect before that point changes nothing of the car's speed; it drives the turn at its turn speed;
-* the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction:
-  if no prompt took effect by then, the car goes straight through the junction (a missed turn), else it follows
-  the route; a "prepare" heard without its "turn" chooses the branch in half of the rows (a driver may not trust
-  it alone); where the route goes straight through the junction ahead (read from its shape), the prompts are for
-  the next point where it turns, and a "turn" in effect at the junction it goes straight through is taken there (a
-  wrong turn); whether it goes straight is read from the direction the route leaves by past the junction's box;
+* a "turn" is in effect from its effect until the next "turn" or "keep left" is said (the driver acts on the latest
+  instruction, from the moment it is said);
+* the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction, at
+  its speed then (the moment interpolated between the imagination's steps): if no "turn" is in effect then, the car
+  goes straight through the junction (a missed turn), else it follows the route; a "turn" that takes effect after the
+  commit but before the car reaches the junction is swerved into; a "prepare" heard without its "turn" chooses the
+  branch in half of the rows (a driver may not trust it alone); where the route goes straight through the junction
+  ahead (read from its shape), the prompts are for the next point where it turns, a "turn" in effect at (or swerved
+  into before) the junction it goes straight through is taken there (a wrong turn), and a "turn" or "prepare" said
+  before the car enters that junction is dropped there; whether it goes straight is read from the direction the
+  route leaves by past the junction's box;
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
   the route takes that exit where the navigation's own plan (``explore_future``) says a "turn" (one too late misses
-  it), else it passes it (a "turn" in effect there is a wrong exit);
+  it), else it passes it (a "turn" in effect there is a wrong exit); the car holds its speed on the ring;
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
