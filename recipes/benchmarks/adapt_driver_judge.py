@@ -43,13 +43,7 @@ def sweep(runs: list[dict[str, Any]], out: Path = OUT) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     j["plot"] = follow.plot_sweep_leads(runs, str(out / "look_sweep_leads.png"), methods=SWEEP_METHODS)
     (out / "look_sweep.json").write_text(json.dumps(j, indent=1) + "\n")
-    lines = [f"seeds {j['seeds']}; reaction times {j['reaction_times']}"]
-    for method, towns in j["spearman"].items():
-        for town, rhos in towns.items():
-            lines.append(f"spearman {method:12s} {town}: {rhos}")
-    for method, towns in j["leads"].items():
-        for town, leads in towns.items():
-            lines.append(f"mean turn lead {method:12s} {town}: {leads}")
+    lines = follow.sweep_lines(j)
     for name in ("pooled", "Town1", "Town3"):
         r = j.get(name, {})
         if "quick_end_cost_ratio" in r:

@@ -205,6 +205,16 @@ def judge_sweep(results: list[dict[str, Any]], learner: str = "belief",
     return out
 
 
+def sweep_lines(judged: dict[str, Any]) -> list[str]:
+    """:func:`judge_sweep`'s seeds, Spearman and mean "turn" leads per method and town, as printed lines."""
+    lines = [f"seeds {judged['seeds']}; reaction times {judged['reaction_times']}"]
+    for method, towns in judged["spearman"].items():
+        lines += [f"spearman {method:12s} {town}: {rhos}" for town, rhos in towns.items()]
+    for method, towns in judged["leads"].items():
+        lines += [f"mean turn lead {method:12s} {town}: {leads}" for town, leads in towns.items()]
+    return lines
+
+
 def judge_repeat(results: list[dict[str, Any]], learner: str = "belief") -> dict[str, Any]:
     """The personalization curve (:data:`REPEAT_TARGETS`): per drive *k* of the same driver, the slow drivers' gap
     closed, the quick drivers' cost over explore's and "turn" lead minus explore's, and the belief's interval."""

@@ -146,17 +146,23 @@ def _arc_route(radius: float) -> torch.Tensor:
     return torch.tensor(pts[:96])
 
 
-def test_a_turn_said_before_the_car_enters_a_junction_it_goes_straight_through_is_dropped_there():
+def _left_turn_root(points: int, turn_at: int, distance: float):
+    """A root at 10 m/s, no prompt yet: ``route_ahead`` east (points 3 m apart, the car 15 m on), left (north) at
+    point ``turn_at``; the next decision junction ``distance`` m ahead."""
     from tensordict import TensorDict
 
-    # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then left at
-    # 150 m; a "turn" said at 5 s takes effect at 6.7 s, past the first junction's entry (no wrong turn there)
-    route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)
-    route[56:, 1] = (torch.arange(104.0) + 1) * 3
-    route[56:, 0] = route[55, 0]
+    route = torch.stack([torch.arange(float(points)) * 3 - 15, torch.zeros(points)], -1)
+    route[turn_at + 1:, 1] = (torch.arange(float(points - turn_at - 1)) + 1) * 3
+    route[turn_at + 1:, 0] = route[turn_at, 0]
     history = torch.zeros(5, 21)
     history[:, 3] = 10.0
-    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(60.0)}, [])
+    return TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(distance)}, [])
+
+
+def test_a_turn_said_before_the_car_enters_a_junction_it_goes_straight_through_is_dropped_there():
+    # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then left at
+    # 150 m; a "turn" said at 5 s takes effect at 6.7 s, past the first junction's entry (no wrong turn there)
+    root = _left_turn_root(points=160, turn_at=55, distance=60.0)
     env = DriverImaginedEnv([DriverParams(reaction_time=0.5, sigma=0.01, cruise=10.0)], quantiles=(0.0,))
     said = torch.stack([torch.cat([torch.zeros(k, dtype=torch.long), torch.full((22 - k,), 1)]) for k in (5, 7)])
     pos, _ = env.imagine(root, said)
@@ -219,16 +225,9 @@ def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn
 
 
 def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_until_the_car_reaches_the_junction():
-    from tensordict import TensorDict
-
     # 10 m/s, a left turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now); a "turn"
     # said now is heard at 1.2 s and takes effect a reaction time later
-    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)
-    route[25:, 1] = (torch.arange(71.0) + 1) * 3
-    route[25:, 0] = route[24, 0]
-    history = torch.zeros(5, 21)
-    history[:, 3] = 10.0
-    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+    root = _left_turn_root(points=96, turn_at=24, distance=57.0)
     turn = torch.full((1, 12), int(Instruction.TURN_LEFT))
     ends = {}
     for reaction in (2.4, 4.4, 4.6):  # effect at 3.6 s (before the commit), 5.6 s (after it) and 5.8 s (too late)
