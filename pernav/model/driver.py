@@ -27,8 +27,10 @@ traffic):
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
-  the route takes that exit where the navigation's own plan (``explore_future``) says a "turn" (one too late misses
-  it), else it passes it (a "turn" in effect there is a wrong exit); the car holds its speed on the ring;
+  the route takes that exit where its shape leaves the ring there, else it passes it (a "turn" in effect there is a
+  wrong exit): a route that stays on the ring keeps bending the ring's way past the exit (the navigation's own plan
+  cannot tell: it says the "turn" for the exit after this one before the car passes this one); the car holds its
+  speed on the ring;
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -85,6 +87,11 @@ JUNCTION_SPAN = 9.0  # m either side of a point over which the route's turn ther
 # box is 15-25 m long, so the direction the route leaves by is measured past it, not at the entry
 JUNCTION_ARC = 24.0
 RING_REACH = 50.0  # m: the farthest a ring's exit ahead lies from a car on the ring
+# the ring bends clockwise in the route's (x, y) coordinates (right-hand traffic in the world's y-down frame): a route
+# that bends at least this much that way over RING_SPAN m past an exit stays on the ring (it passes that exit); one
+# that leaves it bends the other way (measured on Town3's and Town4's rings: -40 to -44 degrees against +13 to +22)
+RING_BEND_DEG = -20.0
+RING_SPAN = (5.0, 20.0)
 
 
 @dataclass(frozen=True)
@@ -200,6 +207,21 @@ def _next_turn(route: torch.Tensor, s_from: float) -> float:
     return float(s[turns[0, 0]]) if len(turns) else FAR
 
 
+def _bend(route: torch.Tensor, a: float, b: float) -> float:
+    """The route's heading change from arc length ``a`` to ``b`` (degrees, counter-clockwise positive in its (x, y))."""
+    def heading(x: float) -> torch.Tensor:
+        return _route_at(route, torch.tensor(x + 1.0, dtype=torch.float64)) - \
+            _route_at(route, torch.tensor(x - 1.0, dtype=torch.float64))
+
+    h1, h2 = heading(a), heading(b)
+    return math.degrees(math.atan2(float(h1[0] * h2[1] - h1[1] * h2[0]), float((h1 * h2).sum())))
+
+
+def _stays_on_ring(route: torch.Tensor, s_exit: float) -> bool:
+    """Whether the route passes the ring's exit ``s_exit`` m ahead (keeps bending the ring's way past it)."""
+    return _bend(route, s_exit + RING_SPAN[0], s_exit + RING_SPAN[1]) <= RING_BEND_DEG
+
+
 def _junction_ahead(root: TensorDictBase, route: torch.Tensor) -> tuple[float, float, bool, bool, bool]:
     """``(s_first, s_junction, through, ring, in_ring)``: the next manoeuvre's arc length (the env's
     ``distance_to_junction``), the one the prompts are for (where the route goes straight through the first, the next
@@ -242,10 +264,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     hist = root["history"].double()
     route = root["route_ahead"].double()
     s_first, s_junction, through, ring, in_ring = _junction_ahead(root, route)
-    # on the ring, the exit ahead is the route's when the navigation's own plan (explore's next prompts) turns there;
-    # where the route passes it, a turn in effect when the driver commits leaves the route (a wrong exit), none keeps to it
-    plan = root["explore_future"] if "explore_future" in root.keys() else torch.zeros(0, dtype=torch.long)
-    passing = in_ring and not bool(torch.isin(plan.long(), torch.tensor(TURNS)).any())
+    # on the ring, the exit ahead is the route's where the route leaves the ring there; where it passes the exit, a
+    # turn in effect when the driver commits leaves the route (a wrong exit), none keeps to it
+    passing = in_ring and _stays_on_ring(route, s_first)
     N, H = sequences.shape
     M = drivers.shape[0]
     drivers = drivers.double()

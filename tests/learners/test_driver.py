@@ -146,6 +146,18 @@ def _arc_route(radius: float) -> torch.Tensor:
     return torch.tensor(pts[:96])
 
 
+def _ring_route(radius: float = 20.0) -> torch.Tensor:
+    """``route_ahead`` points 3 m apart round a ring of ``radius`` m, clockwise in (x, y) as the world's rings are
+    driven, from 15 m behind the car: a route that stays on the ring past every exit."""
+    s = torch.arange(96.0) * 3 - 15
+    return torch.stack([radius * torch.sin(s / radius), -radius * (1 - torch.cos(s / radius))], -1)
+
+
+def _off_ring(pos: torch.Tensor, radius: float = 20.0) -> torch.Tensor:
+    """How far positions ``[..., 2]`` are from :func:`_ring_route`'s ring (m)."""
+    return ((pos - torch.tensor([0.0, -radius])).norm(dim=-1) - radius).abs()
+
+
 def _left_turn_root(points: int, turn_at: int, distance: float):
     """A root at 10 m/s, no prompt yet: ``route_ahead`` east (points 3 m apart, the car 15 m on), left (north) at
     point ``turn_at``; the next decision junction ``distance`` m ahead."""
@@ -192,27 +204,32 @@ def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_o
     pos, _ = env.imagine(root, torch.stack([now, late]))
     # the driver enters the ring either way and slows for it whatever it heard: the same drive
     assert torch.allclose(pos[:, 0], pos[:, 1]) and bool((pos[:, :, -1, 1] > 10.0).all())
-    # on the ring, where the navigation's plan says no "turn" the route passes the exit ahead: "keep left" and a "turn"
-    # said too late for it stay on the route; a "turn" in effect when the driver commits takes the exit (leaves it)
+    # on the ring, where the route leaves it at the exit ahead (bends out of it), that exit is the route's: "keep
+    # left" there misses it, a "turn" takes it
     root["in_roundabout"] = torch.tensor(True)
     turn = torch.full((12,), int(Instruction.TURN_LEFT))
     late_turn = torch.cat([torch.zeros(8, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
-    pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn, late_turn]))
-    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 2, -1, 1] > 10.0).all())
-    assert bool((pos[:, 1, -1, 1].abs() < 1.0).all())
-    # where the navigation's own plan turns at the exit ahead, it is the route's: "keep left" there misses it
-    root["explore_future"] = torch.cat([torch.zeros(2, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
     pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn]))
     assert bool((pos[:, 0, -1, 1].abs() < 1.0).all()) and bool((pos[:, 1, -1, 1] > 10.0).all())
+    # where the route stays on the ring past the exit ahead, it passes that exit: "keep left" and a "turn" said too
+    # late for it stay on the ring, a "turn" in effect when the driver commits takes the exit (leaves the ring). The
+    # navigation's own plan (its "turn" for the exit after this one, said before the car passes this one) does not
+    # make this exit the route's
+    root["route_ahead"] = _ring_route()
+    root["explore_future"] = torch.cat([torch.zeros(2, dtype=torch.long), torch.full((4,), int(Instruction.TURN_LEFT))])
+    pos, _ = env.imagine(root, torch.stack([torch.full((12,), int(keep)), turn, late_turn]))
+    assert bool((_off_ring(pos[:, 0]) < 1.0).all()) and bool((_off_ring(pos[:, 2]) < 1.0).all())
+    assert bool((_off_ring(pos[:, 1, -1]) > 10.0).all())
+
 
 def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn_it_heard_before():
     from tensordict import TensorDict
 
-    # the driver heard a "turn" 3 s ago (in effect now); the route passes the exit ahead (the plan says no "turn")
+    # the driver heard a "turn" 3 s ago (in effect now); the route passes the exit ahead (stays on the ring)
     history = torch.zeros(5, 21)
     history[:, 3] = 8.0
     history[1, 14 + int(Instruction.TURN_LEFT)] = 1.0
-    root = TensorDict({"history": history, "route_ahead": _arc_route(15.0), "distance_to_junction": torch.tensor(30.0),
+    root = TensorDict({"history": history, "route_ahead": _ring_route(), "distance_to_junction": torch.tensor(30.0),
                        "near_roundabout": torch.tensor(True), "in_roundabout": torch.tensor(True)}, [])
     env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, cruise=8.0)], quantiles=(0.0,))
     keep = int(Instruction.KEEP_LEFT)
@@ -221,7 +238,7 @@ def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn
     pos, _ = env.imagine(root, torch.stack([now, late]))
     # said now, it supersedes the "turn" before the driver commits (~1.8 s on): it stays on the ring, the route; said
     # 3 s later, the "turn" is still the latest when it commits: it takes the exit (leaves the route)
-    assert bool((pos[:, 0, -1, 1] > 10.0).all()) and bool((pos[:, 1, -1, 1].abs() < 1.0).all())
+    assert bool((_off_ring(pos[:, 0]) < 1.0).all()) and bool((_off_ring(pos[:, 1, -1]) > 10.0).all())
 
 
 def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_until_the_car_reaches_the_junction():
