@@ -7,7 +7,13 @@ reason. The sweep (the ``personal_sweep`` preset, the average driver with its re
     .venv/bin/python -m recipes.benchmarks.adapt_driver_judge sweep runs/look_sweep_s23*
 
 writes ``docs/figures/adapt_driver/look_sweep.json`` and ``look_sweep_leads.png`` (``--out DIR``: elsewhere) and
-prints the figures and whether each target is met.
+prints the figures and whether each target is met. The paper look (the ``paper`` preset, one study per town):
+
+    for t in Town1 Town2 Town3 Town4 Town5; do pernav study --preset paper --towns $t --seed 0 \
+        --methods explore adapt_driver --out runs/look_paper/$t --workers 2; done
+    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge paper --name look_paper runs/look_paper/Town*
+
+writes ``docs/figures/adapt_driver/<name>.json`` (``--name``: which look, default ``look_paper``).
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from pernav.study.stats import paired_difference
 from recipes.benchmarks import follow
 from recipes.benchmarks.registered import registration
 
@@ -55,6 +62,59 @@ def sweep(runs: list[dict[str, Any]], out: Path = OUT) -> list[str]:
     return lines
 
 
+def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, name: str = "look_paper"
+          ) -> list[str]:
+    """The paper look: in each town, explore minus ``adapt_driver`` per paired episode of the online rounds (95 %
+    bootstrap CI, and as a share of explore's mean cost), missed turns and collisions over explore's, against
+    ``look``'s targets (an entry of the registration)."""
+    targets = look["targets"]
+    towns: dict[str, Any] = {}
+    for res in runs:
+        cfg = res["config"]
+        if cfg.get("preset") != "paper" or cfg.get("seed") not in look["seeds"]:
+            raise ValueError(f"the paper look is registered on the paper preset, seeds {look['seeds']}; this run is "
+                             f"{cfg.get('preset')!r} seed {cfg.get('seed')}")
+        rows: dict[str, list[tuple[dict, dict]]] = {}
+        for it in res["iterations"]:
+            if it["phase"] != "online":
+                continue
+            for town, methods in it["towns"].items():
+                if "adapt_driver" in methods and "explore" in methods:
+                    rows.setdefault(town, []).extend(zip(methods["explore"]["episodes"],
+                                                         methods["adapt_driver"]["episodes"], strict=True))
+        for town, pairs in rows.items():
+            if town in towns:
+                raise ValueError(f"{town} is given twice")
+            e_cost = [e["tracking_cost"] for e, _ in pairs]
+            d = paired_difference(e_cost, [a["tracking_cost"] for _, a in pairs])
+            mean_e = sum(e_cost) / len(e_cost)
+            count = {k: (sum(int(a[k]) for _, a in pairs), sum(int(e[k]) for e, _ in pairs))
+                     for k in ("missed_turns", "collisions", "wrong_turns")}
+            incomplete = (sum(not a["completed"] for _, a in pairs), sum(not e["completed"] for e, _ in pairs))
+            share = {k: d[k] / mean_e for k in ("mean", "low", "high")}
+            towns[town] = {"episodes": len(pairs), "explore_mean_cost": mean_e, "explore_minus_adapt_driver": d,
+                           "as_share_of_explore": share,
+                           "adapt_driver_vs_explore": {**count, "incomplete": incomplete},
+                           "verdict": {
+                               "cost": {"target_ci_low": targets["cost"]["ci_low"], "ci_low": share["low"],
+                                        "met": share["low"] > targets["cost"]["ci_low"]},
+                               "missed_turns": {"target": targets["missed_turns"]["point"], "met": count["missed_turns"][0]
+                                                <= targets["missed_turns"]["point"] * count["missed_turns"][1]},
+                               "collisions": {"target": targets["collisions"]["point"], "met": count["collisions"][0]
+                                              <= targets["collisions"]["point"] * count["collisions"][1]}}}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{name}.json").write_text(json.dumps({"look": name, "towns": towns}, indent=1) + "\n")
+    lines = []
+    for town, t in towns.items():
+        d, s, c = t["explore_minus_adapt_driver"], t["as_share_of_explore"], t["adapt_driver_vs_explore"]
+        lines.append(f"{town} ({t['episodes']} paired episodes): explore - adapt_driver {d['mean']:+.1f} [{d['low']:+.1f}, "
+                     f"{d['high']:+.1f}] per episode ({100 * s['mean']:+.1f} % [{100 * s['low']:+.1f} %, "
+                     f"{100 * s['high']:+.1f} %] of explore's {t['explore_mean_cost']:.0f}); adapt_driver (explore): "
+                     + ", ".join(f"{k} {a} ({b})" for k, (a, b) in c.items()) + "; met: "
+                     + ", ".join(f"{k} {'yes' if v['met'] else 'no'}" for k, v in t["verdict"].items()))
+    return lines
+
+
 def main() -> None:
     args = sys.argv[1:]
     out = OUT
@@ -62,11 +122,20 @@ def main() -> None:
         i = args.index("--out")
         out = Path(args[i + 1])
         del args[i: i + 2]
+    name = "look_paper"
+    if "--name" in args:  # which registered paper look: look_paper (first_look) or look_paper_second (second_look)
+        i = args.index("--name")
+        name = args[i + 1]
+        del args[i: i + 2]
     look, paths = args[0], args[1:]
-    if look != "sweep":
-        raise SystemExit(f"unknown look {look!r}; judged here: sweep")
+    if look not in ("sweep", "paper"):
+        raise SystemExit(f"unknown look {look!r}; judged here: sweep, paper")
     runs = [json.loads((Path(p) / "results.json").read_text()) for p in paths]
-    print("\n".join(sweep(runs, out)))
+    if look == "sweep":
+        print("\n".join(sweep(runs, out)))
+        return
+    entry = "second_look" if name.endswith("_second") else "first_look"
+    print("\n".join(paper(runs, registration("adapt_driver")[entry]["paper"], out, name)))
 
 
 if __name__ == "__main__":
