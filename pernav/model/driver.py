@@ -29,8 +29,8 @@ traffic):
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
   the route takes that exit where its shape leaves the ring there, else it passes it (a "turn" in effect there is a
   wrong exit): a route that stays on the ring keeps bending the ring's way past the exit (the navigation's own plan
-  cannot tell: it says the "turn" for the exit after this one before the car passes this one); the car holds its
-  speed on the ring;
+  cannot tell: it says the "turn" for the exit after this one before the car passes this one); the car drives the
+  ring at its turn speed (it may have entered it from a stop);
 * the car follows the planned route (the env's ``route_ahead``) at its current speed otherwise, back to its cruise
   after the junction; the goal is the navigation's own: where the car would be a step on at its speed.
 
@@ -308,9 +308,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             d = s_junction - s
             turning = (first_turn <= t) & taken
             preparing = (first_prepare <= t) & (d > 0)
-            # on the ring the car holds its speed up to the exit ahead, and past it if it stays on the ring
-            hold = ((d > -TURN_LENGTH) | ~(taken ^ passing)) if in_ring else None
-            v = _next_speed(v, d, turning, preparing, hold, v0, drivers, dt)
+            # on the ring the car drives at its turn speed up to the exit ahead, and past it if it stays on the ring
+            ring_speed = ((d > -TURN_LENGTH) | ~(taken ^ passing)) if in_ring else None
+            v = _next_speed(v, d, turning, preparing, ring_speed, drivers, dt)
             s = s + v * dt
         out_s.append(s.clone())
         out_taken.append(taken.clone())
@@ -365,10 +365,11 @@ class _Decision:
 
 
 def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, preparing: torch.Tensor,
-                hold: torch.Tensor | None, v0: float, drivers: torch.Tensor, dt: float) -> torch.Tensor:
+                ring: torch.Tensor | None, drivers: torch.Tensor, dt: float) -> torch.Tensor:
     """``[M, N]``: the speed ``dt`` on from ``v``, ``d`` m before the junction: the driver means to reach it at its
     turn speed once it knows it turns, halfway to its cruise on a "prepare" alone, and brakes for it only as late as
-    its comfortable deceleration allows (harder for a turn it learns of too late); ``hold`` holds ``v0``."""
+    its comfortable deceleration allows (harder for a turn it learns of too late); where ``ring``, it drives at its
+    turn speed (a ring is a long turn)."""
     M = drivers.shape[0]
     v_turn, brake, cruise, prepared, accel = (drivers[:, k].reshape(M, 1) for k in range(3, 8))
     cruise = cruise.expand_as(v)
@@ -381,8 +382,8 @@ def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, prepari
     target = torch.where(preparing, torch.minimum(cruise, prepared * cruise), cruise)
     target = torch.where(turning & ~before & (d > -TURN_LENGTH), torch.minimum(target, v_turn), target)
     target = torch.minimum(target, reach)
-    if hold is not None:
-        target = torch.where(hold, torch.full_like(target, v0), target)
+    if ring is not None:
+        target = torch.where(ring, v_turn.expand_as(target), target)
     down = torch.where(reach < v, HARD_BRAKE * brake, brake).expand_as(v)
     return torch.where(v > target, torch.maximum(v - down * dt, target), torch.minimum(v + accel * dt, target))
 

@@ -195,7 +195,7 @@ def test_on_the_way_into_a_roundabout_the_prompts_timing_changes_no_branch_and_o
 
     history = torch.zeros(5, 21)
     history[:, 3] = 8.0
-    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, cruise=8.0)], quantiles=(0.0,))
+    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, turn_speed=8.0, cruise=8.0)], quantiles=(0.0,))
     enter, keep = Instruction.ENTER_ROUNDABOUT, Instruction.KEEP_LEFT
     now = torch.full((12,), int(enter))
     late = torch.cat([torch.zeros(8, dtype=torch.long), torch.full((4,), int(enter))])
@@ -231,7 +231,7 @@ def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn
     history[1, 14 + int(Instruction.TURN_LEFT)] = 1.0
     root = TensorDict({"history": history, "route_ahead": _ring_route(), "distance_to_junction": torch.tensor(30.0),
                        "near_roundabout": torch.tensor(True), "in_roundabout": torch.tensor(True)}, [])
-    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, cruise=8.0)], quantiles=(0.0,))
+    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, sigma=0.01, turn_speed=8.0, cruise=8.0)], quantiles=(0.0,))
     keep = int(Instruction.KEEP_LEFT)
     now = torch.full((12,), keep)
     late = torch.cat([torch.zeros(3, dtype=torch.long), torch.full((9,), keep)])
@@ -352,3 +352,21 @@ def test_ftml_never_ends_worse_on_its_own_objective_than_it_started():
         kept += meta == prior
         moved += meta != prior
     assert kept and moved  # both happen here: the check decides
+
+
+def test_a_car_that_entered_the_ring_from_a_stop_drives_it_at_its_turn_speed_not_at_its_speed_now():
+    from tensordict import TensorDict
+
+    # on the ring at 1 m/s (it stopped at the yield line), the route passing the exit 20 m ahead; the navigation says
+    # "keep left" now and the "turn" for the exit after this one 3 s on (taking effect from ~6 s): at its turn speed the
+    # car passes this exit before then (it stays on the ring), at 1 m/s it would still be short of it (and leave by it)
+    history = torch.zeros(5, 21)
+    history[:, 3] = 1.0
+    root = TensorDict({"history": history, "route_ahead": _ring_route(), "distance_to_junction": torch.tensor(20.0),
+                       "near_roundabout": torch.tensor(True), "in_roundabout": torch.tensor(True)}, [])
+    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, decision_time=2.0, sigma=0.01, turn_speed=7.0, accel=2.0,
+                                          cruise=10.0)], quantiles=(0.0,))
+    plan = torch.cat([torch.full((3,), int(Instruction.KEEP_LEFT)), torch.full((19,), int(Instruction.TURN_LEFT))])
+    pos, _ = env.imagine(root, plan[None])
+    assert bool((_off_ring(pos[:, 0]) < 1.0).all())
+    assert float((pos[0, 0, 1] - pos[0, 0, 0]).norm()) > 2.5  # it sped up: more than 1 m/s after the first second
