@@ -7,13 +7,16 @@ reason. The sweep (the ``personal_sweep`` preset, the average driver with its re
     .venv/bin/python -m recipes.benchmarks.adapt_driver_judge sweep runs/look_sweep_s23*
 
 writes ``docs/figures/adapt_driver/look_sweep.json`` and ``look_sweep_leads.png`` (``--out DIR``: elsewhere) and
-prints the figures and whether each target is met. The paper look (the ``paper`` preset, one study per town):
+prints the figures and whether each target is met. The paper look (the ``paper`` preset, one study per town; the
+registration's ``second_look``, seed 1):
 
-    for t in Town1 Town2 Town3 Town4 Town5; do pernav study --preset paper --towns $t --seed 0 \
-        --methods explore adapt_driver --out runs/look_paper/$t --workers 2; done
-    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge paper --name look_paper runs/look_paper/Town*
+    for t in Town1 Town2 Town3 Town4 Town5; do pernav study --preset paper --towns $t --seed 1 \
+        --methods explore adapt_driver --out runs/look2_paper/$t --workers 2; done
+    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge paper --entry second_look --name look_paper_second \
+        runs/look2_paper/Town*
 
-writes ``docs/figures/adapt_driver/<name>.json`` (``--name``: which look, default ``look_paper``).
+writes ``docs/figures/adapt_driver/<name>.json`` (``--entry``: the registration's entry whose seeds and targets
+judge, default ``first_look``; ``--name``: the file, default ``look_paper``).
 """
 
 from __future__ import annotations
@@ -115,6 +118,11 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
     return lines
 
 
+def _fail(message: str) -> None:
+    print(f"error: {message}", file=sys.stderr)
+    raise SystemExit(2)
+
+
 def main() -> None:
     args = sys.argv[1:]
     out = OUT
@@ -122,20 +130,25 @@ def main() -> None:
         i = args.index("--out")
         out = Path(args[i + 1])
         del args[i: i + 2]
-    name = "look_paper"
-    if "--name" in args:  # which registered paper look: look_paper (first_look) or look_paper_second (second_look)
-        i = args.index("--name")
-        name = args[i + 1]
-        del args[i: i + 2]
+    options = {"--name": "look_paper", "--entry": "first_look"}
+    for flag in options:
+        if flag in args:
+            i = args.index(flag)
+            options[flag] = args[i + 1]
+            del args[i: i + 2]
+    name, entry = options["--name"], options["--entry"]
     look, paths = args[0], args[1:]
     if look not in ("sweep", "paper"):
-        raise SystemExit(f"unknown look {look!r}; judged here: sweep, paper")
+        _fail(f"unknown look {look!r}; judged here: sweep, paper")
     runs = [json.loads((Path(p) / "results.json").read_text()) for p in paths]
     if look == "sweep":
         print("\n".join(sweep(runs, out)))
         return
-    entry = "second_look" if name.endswith("_second") else "first_look"
-    print("\n".join(paper(runs, registration("adapt_driver")[entry]["paper"], out, name)))
+    looks = registration("adapt_driver")
+    if entry not in looks or "paper" not in looks[entry]:
+        _fail(f"the registration has no paper look {entry!r}; it has: "
+              + ", ".join(k for k, v in looks.items() if "paper" in v))
+    print("\n".join(paper(runs, looks[entry]["paper"], out, name)))
 
 
 if __name__ == "__main__":
