@@ -89,7 +89,8 @@ JUNCTION_ARC = 24.0
 RING_REACH = 50.0  # m: the farthest a ring's exit ahead lies from a car on the ring
 # the ring bends clockwise in the route's (x, y) coordinates (right-hand traffic in the world's y-down frame): a route
 # that bends at least this much that way over RING_SPAN m past an exit stays on the ring (it passes that exit); one
-# that leaves it bends the other way (measured on Town3's and Town4's rings: -40 to -44 degrees against +13 to +22)
+# that leaves it bends the other way (Town3's and Town4's rings: -39.5 to -45.1 degrees against +12.9 to +21.9, by
+# docs/research/scripts/ring_exits.py)
 RING_BEND_DEG = -20.0
 RING_SPAN = (5.0, 20.0)
 
