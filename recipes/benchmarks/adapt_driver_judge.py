@@ -91,13 +91,18 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
             e_cost = [e["tracking_cost"] for e, _ in pairs]
             d = paired_difference(e_cost, [a["tracking_cost"] for _, a in pairs])
             mean_e = sum(e_cost) / len(e_cost)
-            count = {k: (sum(int(a[k]) for _, a in pairs), sum(int(e[k]) for e, _ in pairs))
-                     for k in ("missed_turns", "collisions", "wrong_turns")}
+            count = {k: (sum(int(a.get(k, 0)) for _, a in pairs), sum(int(e.get(k, 0)) for e, _ in pairs))
+                     for k in ("missed_turns", "collisions", "wrong_turns", "edge_strikes")}
             incomplete = (sum(not a["completed"] for _, a in pairs), sum(not e["completed"] for e, _ in pairs))
             share = {k: d[k] / mean_e for k in ("mean", "low", "high")}
+            collisions = paired_difference([a["collisions"] for _, a in pairs], [e["collisions"] for e, _ in pairs])
+            # the mean "turn" lead where both drives said one (s before the junction): how early each prompts
+            leads = [(a["turn_lead"], e["turn_lead"]) for e, a in pairs
+                     if a.get("turn_lead") is not None and e.get("turn_lead") is not None]
+            lead = [sum(x[i] for x in leads) / len(leads) if leads else None for i in (0, 1)]
             towns[town] = {"episodes": len(pairs), "explore_mean_cost": mean_e, "explore_minus_adapt_driver": d,
-                           "as_share_of_explore": share,
-                           "adapt_driver_vs_explore": {**count, "incomplete": incomplete},
+                           "as_share_of_explore": share, "adapt_driver_minus_explore_collisions": collisions,
+                           "adapt_driver_vs_explore": {**count, "incomplete": incomplete, "turn_lead_mean": lead},
                            "verdict": {
                                "cost": {"target_ci_low": targets["cost"]["ci_low"], "ci_low": share["low"],
                                         "met": share["low"] > targets["cost"]["ci_low"]},
@@ -113,7 +118,10 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
         lines.append(f"{town} ({t['episodes']} paired episodes): explore - adapt_driver {d['mean']:+.1f} [{d['low']:+.1f}, "
                      f"{d['high']:+.1f}] per episode ({100 * s['mean']:+.1f} % [{100 * s['low']:+.1f} %, "
                      f"{100 * s['high']:+.1f} %] of explore's {t['explore_mean_cost']:.0f}); adapt_driver (explore): "
-                     + ", ".join(f"{k} {a} ({b})" for k, (a, b) in c.items()) + "; met: "
+                     + ", ".join(f"{k} {a} ({b})" for k, (a, b) in c.items() if k != "turn_lead_mean")
+                     + f"; collisions per episode {t['adapt_driver_minus_explore_collisions']['mean']:+.3f} "
+                     f"[{t['adapt_driver_minus_explore_collisions']['low']:+.3f}, "
+                     f"{t['adapt_driver_minus_explore_collisions']['high']:+.3f}]; met: "
                      + ", ".join(f"{k} {'yes' if v['met'] else 'no'}" for k, v in t["verdict"].items()))
     return lines
 
