@@ -15,6 +15,9 @@ traffic):
   takes effect before that point changes nothing of the car's speed; it drives the turn at its turn speed;
 * a "turn" is in effect from its effect until the next "turn" or "keep left" is said (the driver acts on the latest
   instruction, from the moment it is said);
+* a "turn" or "prepare" names a side: one of the side the route does not turn to at the junction (read from the
+  route's shape; not on a ring, whose exits are all "turn right") names the other branch, so it neither chooses nor
+  prepares the route's, and such a "turn" supersedes the route's as any newer "turn" does;
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction, at
   its speed then (the moment interpolated between the imagination's steps): if no "turn" is in effect then, the car
   goes straight through the junction (a missed turn), else it follows the route; a "turn" that takes effect after the
@@ -40,11 +43,11 @@ Example:
     >>> import torch
     >>> from tensordict import TensorDict
     >>> route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)     # straight ahead along x
-    >>> route[25:, 1] = (torch.arange(71.0) + 1) * 3; route[25:, 0] = route[24, 0]     # a left turn 57 m ahead
+    >>> route[25:, 1] = (torch.arange(71.0) + 1) * 3; route[25:, 0] = route[24, 0]     # a right turn 57 m ahead
     >>> history = torch.zeros(5, 21); history[:, 3] = 10.0                          # 10 m/s, no prompt yet
     >>> root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
     >>> env = DriverImaginedEnv()
-    >>> now, late = torch.full((12,), 1), torch.cat([torch.zeros(10, dtype=torch.long), torch.full((2,), 1)])
+    >>> now, late = torch.full((12,), 2), torch.cat([torch.zeros(10, dtype=torch.long), torch.full((2,), 2)])
     >>> pos, goal = env.imagine(root, torch.stack([now, late]), [DriverParams(reaction_time=1.0)])
     >>> bool(pos[0, 0, -1, 1] > 5.0), bool(pos[0, 1, -1, 1].abs() < 1.0)    # said now: turned; said late: missed
     (True, True)
@@ -136,13 +139,15 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
 
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float,
-             dropped_before: float = -math.inf) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+             dropped_before: float = -math.inf, other_side: tuple[int, ...] = ()
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
     ``[M, 1]`` and each sequence; and each played "turn"'s window in effect ``[M, N, T]``: from its effect until the
     next "turn" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if none).
     A "turn" or "prepare" said before ``dropped_before`` (s) does not count: the driver drops what it heard when it
-    enters a junction (it was meant for that one)."""
+    enters a junction (it was meant for that one). One of ``other_side`` (the side the route does not turn to) names
+    the other branch: it neither chooses nor prepares the route's, and a "turn" of that side supersedes the route's."""
     N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
@@ -156,9 +161,10 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     # a prompt of the history is for the junction ahead only if it was said within reach of it (else it was the last
     # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back
     reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
-    prepare = torch.isin(actions, torch.tensor(PREPARES)).unsqueeze(0)  # [1, N, T]
+    ours = ~torch.isin(actions, torch.tensor(other_side, dtype=torch.long))  # [N, T] not the other side's
+    prepare = (torch.isin(actions, torch.tensor(PREPARES)) & ours).unsqueeze(0)  # [1, N, T]
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
-    turn = torch.isin(actions, torch.tensor(TURNS)).unsqueeze(0)
+    turn = (torch.isin(actions, torch.tensor(TURNS)) & ours).unsqueeze(0)
     dropped = (turn | prepare)[0] & (starts < dropped_before)
     effect = torch.where((played & reach & ~dropped).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
@@ -184,6 +190,16 @@ def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, t
     into = junction - at(max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND))
     out = at(s_j + JUNCTION_ARC + JUNCTION_SPAN) - at(s_j + JUNCTION_ARC)
     return junction, into / into.norm().clamp(min=1e-6), out / out.norm().clamp(min=1e-6)
+
+
+def _other_side(route: torch.Tensor, s_junction: float) -> tuple[int, int]:
+    """The "turn" and "prepare" of the side the route does *not* turn to at the junction ``s_junction`` m ahead. The
+    route's (x, y) are the world's, y down: a turn to the right is counter-clockwise there (explore's 724 sided
+    prompts in five towns all agree, docs/research/scripts/prompt_sides.py)."""
+    _, into, out = _directions(route, s_junction)
+    right = float(into[0] * out[1] - into[1] * out[0]) > 0.0
+    return (Instruction.TURN_LEFT, Instruction.PREPARE_LEFT) if right else \
+        (Instruction.TURN_RIGHT, Instruction.PREPARE_RIGHT)
 
 
 def _goes_straight(route: torch.Tensor, s_junction: float) -> bool:
@@ -278,9 +294,12 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     v0 = float(torch.hypot(state[VX], state[VY]))
     # the prompts heard by the next junction; where the route goes straight through it, those said before the car
     # enters it are dropped there, and the ones after are for the junction it turns at
-    heard = _effects(hist, sequences, reaction, s_first, v0)
+    # at a junction (not a ring, whose exits are all "turn right"), a prompt of the side the route does not turn to
+    # names the other branch: the car does not follow the route there
+    other = () if ring or s_junction >= FAR else _other_side(route, s_junction)
+    heard = _effects(hist, sequences, reaction, s_first, v0, other_side=() if through else other)
     if through:
-        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1)), heard
+        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1), other), heard
     first_turn, first_prepare = heard[:2]
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it

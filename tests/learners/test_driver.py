@@ -89,7 +89,7 @@ def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_aft
 
     route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)  # straight along x...
     route[45:, 1] = (torch.arange(115.0) + 1) * 3
-    route[45:, 0] = route[44, 0]  # ...then left, 120 m ahead
+    route[45:, 0] = route[44, 0]  # ...then right (+y: the world's y points down), 120 m ahead
     history = torch.zeros(5, 21)
     history[:, 3] = 10.0  # 10 m/s, no prompt yet
     root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(120.0)}, [])
@@ -97,7 +97,7 @@ def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_aft
                                           cruise=10.0)], quantiles=(0.0,))
 
     def turn_from(step: int) -> torch.Tensor:
-        return torch.cat([torch.zeros(step, dtype=torch.long), torch.full((20 - step,), 1)])
+        return torch.cat([torch.zeros(step, dtype=torch.long), torch.full((20 - step,), int(Instruction.TURN_RIGHT))])
 
     # braking from 10 to 5 m/s at 2 m/s^2 takes 19 m: a "turn" known 100 m before the junction or 70 m before it
     # changes nothing; one known 10 m before it (said after 10 s) is braked for later and harder: the car is further on
@@ -158,8 +158,9 @@ def _off_ring(pos: torch.Tensor, radius: float = 20.0) -> torch.Tensor:
     return ((pos - torch.tensor([0.0, -radius])).norm(dim=-1) - radius).abs()
 
 
-def _left_turn_root(points: int, turn_at: int, distance: float):
-    """A root at 10 m/s, no prompt yet: ``route_ahead`` east (points 3 m apart, the car 15 m on), left (north) at
+def _right_turn_root(points: int, turn_at: int, distance: float):
+    """A root at 10 m/s, no prompt yet: ``route_ahead`` along +x (points 3 m apart, the car 15 m on), right (+y: the
+    world's y points down) at
     point ``turn_at``; the next decision junction ``distance`` m ahead."""
     from tensordict import TensorDict
 
@@ -172,11 +173,12 @@ def _left_turn_root(points: int, turn_at: int, distance: float):
 
 
 def test_a_turn_said_before_the_car_enters_a_junction_it_goes_straight_through_is_dropped_there():
-    # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then left at
+    # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then right at
     # 150 m; a "turn" said at 5 s takes effect at 6.7 s, past the first junction's entry (no wrong turn there)
-    root = _left_turn_root(points=160, turn_at=55, distance=60.0)
+    root = _right_turn_root(points=160, turn_at=55, distance=60.0)
     env = DriverImaginedEnv([DriverParams(reaction_time=0.5, sigma=0.01, cruise=10.0)], quantiles=(0.0,))
-    said = torch.stack([torch.cat([torch.zeros(k, dtype=torch.long), torch.full((22 - k,), 1)]) for k in (5, 7)])
+    right = int(Instruction.TURN_RIGHT)
+    said = torch.stack([torch.cat([torch.zeros(k, dtype=torch.long), torch.full((22 - k,), right)]) for k in (5, 7)])
     pos, _ = env.imagine(root, said)
     # said before the car entered the first junction, the driver dropped it there: it misses the turn at 150 m; said
     # after, it turns there
@@ -242,16 +244,35 @@ def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn
 
 
 def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_until_the_car_reaches_the_junction():
-    # 10 m/s, a left turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now); a "turn"
-    # said now is heard at 1.2 s and takes effect a reaction time later
-    root = _left_turn_root(points=96, turn_at=24, distance=57.0)
-    turn = torch.full((1, 12), int(Instruction.TURN_LEFT))
+    # 10 m/s, a right turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now); a
+    # "turn" said now is heard at 1.2 s and takes effect a reaction time later
+    root = _right_turn_root(points=96, turn_at=24, distance=57.0)
+    turn = torch.full((1, 12), int(Instruction.TURN_RIGHT))
     ends = {}
     for reaction in (2.4, 4.4, 4.6):  # effect at 3.6 s (before the commit), 5.6 s (after it) and 5.8 s (too late)
         env = DriverImaginedEnv([DriverParams(reaction_time=reaction, decision_time=2.0, sigma=0.001, cruise=10.0)],
                                 quantiles=(0.0,))
         ends[reaction] = float(env.imagine(root, turn)[0][0, 0, -1, 1])
     assert ends[2.4] > 5.0 and ends[4.4] > 5.0 and abs(ends[4.6]) < 1.0
+
+
+def test_a_prompt_of_the_side_the_route_does_not_turn_to_does_not_take_the_route_and_cancels_its_turn():
+    # 10 m/s, a right turn 57 m ahead (committed to 3.7 s from now); a quick driver (effect 1.7 s after the audio)
+    root = _right_turn_root(points=96, turn_at=24, distance=57.0)
+    env = DriverImaginedEnv([DriverParams(reaction_time=0.5, decision_time=2.0, sigma=0.001, cruise=10.0)],
+                            quantiles=(0.0,))
+    left, right = int(Instruction.TURN_LEFT), int(Instruction.TURN_RIGHT)
+    prep_left, prep_right = int(Instruction.PREPARE_LEFT), int(Instruction.PREPARE_RIGHT)
+    said = torch.stack([torch.full((12,), right), torch.full((12,), left),
+                        torch.cat([torch.full((1,), right), torch.full((11,), left)]),  # "right", then "left" at 1 s
+                        torch.full((12,), prep_right), torch.full((12,), prep_left)])
+    ends = env.imagine(root, said)[0][:, :, -1]  # [2, 5, 2]: the rows where a "prepare" alone does not / does choose
+    # "turn right" and a followed "prepare right" take the route's turn (+y); "turn left" does not, and said after
+    # "turn right" (before the commit) it cancels it; a "prepare left" neither chooses the route's branch nor slows
+    assert bool((ends[:, 0, 1] > 5.0).all()) and bool(ends[1, 3, 1] > 5.0) and bool(ends[0, 3, 1].abs() < 1.0)
+    assert all(bool((ends[:, k, 1].abs() < 1.0).all()) for k in (1, 2, 4))
+    silent = env.imagine(root, torch.zeros(1, 12, dtype=torch.long))[0][:, 0, -1]
+    assert torch.allclose(ends[:, 4], silent)
 
 
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
