@@ -21,12 +21,13 @@ traffic):
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction, at
   its speed then (the moment interpolated between the imagination's steps): if no "turn" is in effect then, the car
   goes straight through the junction (a missed turn), else it follows the route; a "turn" that takes effect after the
-  commit but before the car reaches the junction is swerved into; a "prepare" heard without its "turn" chooses the
-  branch in half of the rows (a driver may not trust it alone); where the route goes straight through the junction
-  ahead (read from its shape), the prompts are for the next point where it turns, a "turn" in effect at (or swerved
-  into before) the junction it goes straight through is taken there (a wrong turn), and a "turn" or "prepare" said
-  before the car enters that junction is dropped there; whether it goes straight is read from the direction the
-  route leaves by past the junction's box;
+  commit but before the car reaches the junction is swerved into where the car can still slow to its turn speed by the
+  junction, braking hard (else it goes straight on: a turn is not driven at speed); a "prepare" heard without its
+  "turn" chooses the branch in half of the rows (a driver may not trust it alone); where the route goes straight
+  through the junction ahead (read from its shape), the prompts are for the next point where it turns, a "turn" in
+  effect at (or swerved into before) the junction it goes straight through is taken there (a wrong turn), and a "turn"
+  or "prepare" said before the car enters that junction is dropped there; whether it goes straight is read from the
+  direction the route leaves by past the junction's box;
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
@@ -290,6 +291,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
     follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
+    v_turn, brake = drivers[:, 3].reshape(M, 1), drivers[:, 4].reshape(M, 1)
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
     # the prompts heard by the next junction; where the route goes straight through it, those said before the car
@@ -321,9 +323,11 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             t = h + (k + 1) * dt
             # the driver commits D seconds before the junction at its speed then (a braking car commits later)
             commit_distance = torch.clamp(D * v, min=MIN_COMMIT)  # [M, N]
+            # the road the car needs to slow to its turn speed braking hard: a late "turn" is swerved into only with it
+            stopping = (v**2 - v_turn**2).clamp(min=0.0) / (2 * HARD_BRAKE * brake)
             for decision in (first, junction):
                 if decision is not None:
-                    decision.step(s, v, commit_distance, t - dt, dt)
+                    decision.step(s, v, commit_distance, t - dt, dt, stopping)
             taken = junction.chosen
             d = s_junction - s
             turning = (first_turn <= t) & taken
@@ -348,9 +352,11 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
 class _Decision:
     """One junction's branch, as the driver chooses it: at its commit ``D`` s (at its speed then) before the junction
     ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
-    after the commit and before the car reaches the junction is swerved into. ``heard``: :func:`_effects` of the
-    prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses. ``chosen`` ``[M, N]``: turned
-    (with ``invert``: did not); its initial value where the junction was decided before the root (``decided``)."""
+    after the commit and before the car reaches the junction is swerved into where the car can still slow to its turn
+    speed by the junction, braking hard (else it goes on: no driver throws a car into a turn at speed). ``heard``:
+    :func:`_effects` of the prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses.
+    ``chosen`` ``[M, N]``: turned (with ``invert``: did not); its initial value where the junction was decided before
+    the root (``decided``)."""
 
     def __init__(self, at: float, shape: tuple[int, int], decided: bool, heard: tuple, follow: torch.Tensor,
                  swerve: bool, chosen: bool, invert: bool = False) -> None:
@@ -370,18 +376,21 @@ class _Decision:
         turn = ((self.turn_from <= at) & (at < self.turn_until)).any(-1)
         return turn | (self.prepared_by <= at[..., 0]) if prepare else turn
 
-    def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float) -> None:
-        """The car, at ``s`` at time ``t`` at speed ``v``, moves on."""
+    def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float,
+             stopping: torch.Tensor) -> None:
+        """The car, at ``s`` at time ``t`` at speed ``v`` (needing ``stopping`` m to slow to its turn speed braking
+        hard), moves on."""
         inside = (~self.committed) & (self.at - s <= commit_distance)
         if bool(inside.any()):
             chosen = self.turns_at(self.at - commit_distance, s, v, t, dt) ^ self.invert
             self.chosen = torch.where(inside, chosen, self.chosen)
         self.committed = self.committed | inside
         if self.swerve:
-            entering = (~self.reached) & (self.at - s <= 0)
-            if bool(entering.any()):
-                self.chosen = self.chosen | (entering & self.turns_at(self.at, s, v, t, dt, prepare=False))
-            self.reached = self.reached | entering
+            late = self.committed & ~self.reached & ~self.chosen  # committed to going on, not yet at the junction
+            if bool(late.any()):  # a "turn" in effect now, with room to slow for it: swerved into from here
+                now = self.turns_at(s, s, v, t, dt, prepare=False)
+                self.chosen = self.chosen | (late & now & (stopping <= self.at - s))
+            self.reached = self.reached | (self.at - s <= 0)
 
 
 def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, preparing: torch.Tensor,

@@ -84,7 +84,7 @@ def test_ftml_moves_the_meta_centre_toward_the_drivers_seen_and_scores_u_not_the
     assert after < before
 
 
-def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_after_it_brakes_later_and_harder():
+def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_too_late_to_slow_for_is_not_taken():
     from tensordict import TensorDict
 
     route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)  # straight along x...
@@ -100,11 +100,12 @@ def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_aft
         return torch.cat([torch.zeros(step, dtype=torch.long), torch.full((20 - step,), int(Instruction.TURN_RIGHT))])
 
     # braking from 10 to 5 m/s at 2 m/s^2 takes 19 m: a "turn" known 100 m before the junction or 70 m before it
-    # changes nothing; one known 10 m before it (said after 10 s) is braked for later and harder: the car is further on
+    # changes nothing; one known 3 m before it (said after 10 s, past the commit 5 m before it) leaves no room to slow
+    # for it even braking hard (7.5 m): the car goes on (it turned at speed in an earlier version of the model)
     pos, _ = env.imagine(root, torch.stack([turn_from(0), turn_from(3), turn_from(10)]))
     assert torch.allclose(pos[:, 0], pos[:, 1])
-    assert bool((pos[:, 2, -1, 1] > pos[:, 0, -1, 1] + 1.0).all())
-    assert bool((pos[:, :, -1, 1] > 20.0).all())  # every one turned
+    assert bool((pos[:, :2, -1, 1] > 20.0).all())  # turned
+    assert bool((pos[:, 2, -1, 0] > 140.0).all())  # went on past the junction
 
 
 def test_the_turn_speed_read_from_tau_follows_the_drivers():
@@ -243,17 +244,24 @@ def test_a_keep_left_said_before_the_driver_commits_on_the_ring_cancels_the_turn
     assert bool((_off_ring(pos[:, 0]) < 1.0).all()) and bool((_off_ring(pos[:, 1, -1]) > 10.0).all())
 
 
-def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_until_the_car_reaches_the_junction():
-    # 10 m/s, a right turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now); a
-    # "turn" said now is heard at 1.2 s and takes effect a reaction time later
+def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_only_where_the_car_can_still_slow_for_it():
+    # 10 m/s, a right turn 57 m ahead (reached 5.7 s from now), decision time 2 s (the commit 3.7 s from now, 20 m
+    # before it); a "turn" said now is heard at 1.2 s and takes effect a reaction time later. Slowing from 10 to the
+    # turn speed 5 m/s braking hard (2.5 * 2 m/s^2) takes 7.5 m
     root = _right_turn_root(points=96, turn_at=24, distance=57.0)
     turn = torch.full((1, 12), int(Instruction.TURN_RIGHT))
-    ends = {}
-    for reaction in (2.4, 4.4, 4.6):  # effect at 3.6 s (before the commit), 5.6 s (after it) and 5.8 s (too late)
-        env = DriverImaginedEnv([DriverParams(reaction_time=reaction, decision_time=2.0, sigma=0.001, cruise=10.0)],
-                                quantiles=(0.0,))
-        ends[reaction] = float(env.imagine(root, turn)[0][0, 0, -1, 1])
-    assert ends[2.4] > 5.0 and ends[4.4] > 5.0 and abs(ends[4.6]) < 1.0
+    ends, speeds = {}, {}
+    # effect at 3.6 s (before the commit), 4.0 s (after it, 17 m before the junction), 5.0 s (7 m before it: no room
+    # to slow) and 5.8 s (past it)
+    for reaction in (2.4, 2.8, 3.8, 4.6):
+        env = DriverImaginedEnv([DriverParams(reaction_time=reaction, decision_time=2.0, sigma=0.001, turn_speed=5.0,
+                                              brake=2.0, cruise=10.0)], quantiles=(0.0,))
+        pos = env.imagine(root, turn)[0][0, 0]
+        ends[reaction] = float(pos[-1, 1])
+        speeds[reaction] = float((pos[6] - pos[5]).norm())  # the step the car enters the junction (5-6 s)
+    assert ends[2.4] > 5.0 and ends[2.8] > 5.0  # turned (swerved into, the second)...
+    assert speeds[2.8] < 8.0  # ...having braked for it
+    assert abs(ends[3.8]) < 1.0 and abs(ends[4.6]) < 1.0  # went on
 
 
 def test_a_prompt_of_the_side_the_route_does_not_turn_to_does_not_take_the_route_and_cancels_its_turn():
