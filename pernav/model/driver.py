@@ -13,8 +13,8 @@ traffic):
   halfway between that and its cruise, which it also slows to a share ``prepared`` of): it brakes for it no earlier
   than its comfortable deceleration ``brake`` needs (harder if it learns of the turn too late), so a prompt that
   takes effect before that point changes nothing of the car's speed; it drives the turn at its turn speed;
-* a "turn" is in effect from its effect until the next "turn" or "keep left" is said (the driver acts on the latest
-  instruction, from the moment it is said);
+* a "turn" is in effect from its effect until the next "turn", "prepare" or "keep left" is said (the driver acts on
+  the latest instruction, from the moment it is said: a "prepare" after a "turn" says the turn is still to come);
 * a "turn" or "prepare" names a side: one of the side the route does not turn to at the junction (read from the
   route's shape; not on a ring, whose exits are all "turn right") names the other branch, so it neither chooses nor
   prepares the route's, and such a "turn" supersedes the route's as any newer "turn" does;
@@ -145,7 +145,8 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
     ``[M, 1]`` and each sequence; and each played "turn"'s window in effect ``[M, N, T]``: from its effect until the
-    next "turn" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if none).
+    next "turn", "prepare" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if
+    none).
     A "turn" or "prepare" said before ``dropped_before`` (s) does not count: the driver drops what it heard when it
     enters a junction (it was meant for that one). One of ``other_side`` (the side the route does not turn to) names
     the other branch: it neither chooses nor prepares the route's, and a "turn" of that side supersedes the route's."""
@@ -171,8 +172,9 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
     first_turn = turn_from.min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
-    # a "turn" holds until the next "turn" or "keep left" is said: the driver acts on the latest it heard
-    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, Instruction.KEEP_LEFT)))  # [N, T]
+    # a "turn" holds until the next "turn", "prepare" or "keep left" is said: the driver acts on the latest it heard (a
+    # "prepare" after a "turn" says the turn is still to come)
+    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, *PREPARES, Instruction.KEEP_LEFT)))  # [N, T]
     said = torch.where(supersedes, starts.expand(N, -1), torch.full_like(effect[0], math.inf))
     # the first superseding start after each prompt's own: a reversed running minimum over the later ones
     later = torch.cat([said[:, 1:], torch.full_like(said[:, :1], math.inf)], 1)

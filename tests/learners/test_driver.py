@@ -264,6 +264,22 @@ def test_a_turn_that_takes_effect_after_the_commit_is_swerved_into_only_where_th
     assert abs(ends[3.8]) < 1.0 and abs(ends[4.6]) < 1.0  # went on
 
 
+def test_a_prepare_said_after_a_turn_supersedes_it_the_turn_is_still_to_come():
+    # 10 m/s, a right turn 57 m ahead (committed to 3.7 s from now); a quick driver
+    root = _right_turn_root(points=96, turn_at=24, distance=57.0)
+    env = DriverImaginedEnv([DriverParams(reaction_time=0.5, decision_time=2.0, sigma=0.001, cruise=10.0)],
+                            quantiles=(0.0,))
+    turn, prepare = int(Instruction.TURN_RIGHT), int(Instruction.PREPARE_RIGHT)
+    said = torch.stack([torch.full((12,), turn),
+                        torch.cat([torch.full((2,), turn), torch.full((10,), prepare)]),  # "prepare" at 2 s
+                        torch.cat([torch.full((2,), turn), torch.full((1,), prepare), torch.full((9,), turn)])])
+    ends = env.imagine(root, said)[0][:, :, -1]  # [2, 3, 2]: the rows where a "prepare" alone does not / does choose
+    # held, the "turn" takes the route's turn; a "prepare" said after it (taking effect after the commit) cancels it:
+    # the car goes on; the "turn" said again at 3 s (effect 4.7 s, after the commit, with room to slow) is taken
+    assert bool((ends[:, 0, 1] > 5.0).all()) and bool((ends[:, 1, 1].abs() < 1.0).all())
+    assert bool((ends[:, 2, 1] > 5.0).all())
+
+
 def test_a_prompt_of_the_side_the_route_does_not_turn_to_does_not_take_the_route_and_cancels_its_turn():
     # 10 m/s, a right turn 57 m ahead (committed to 3.7 s from now); a quick driver (effect 1.7 s after the audio)
     root = _right_turn_root(points=96, turn_at=24, distance=57.0)
