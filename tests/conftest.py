@@ -2,6 +2,9 @@ import os
 import sys
 from pathlib import Path
 
+import pytest
+import torch
+
 # the repository's root: the tests of recipes/ import them as ``recipes.benchmarks.*``, whatever the current folder;
 # and the shared smoke study's helpers (tests/study/study_helpers.py), which the recipes' tests use too
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -86,3 +89,11 @@ def pytest_collection_modifyitems(config, items):
 
     turns = [item for item in turns if not late(item)] + [item for item in turns if late(item)]
     items[:] = turns + [item for item in items if item.get_closest_marker("slow") is None]
+
+
+@pytest.fixture(autouse=True)
+def _seeded_global_generator():
+    """Every test starts from the same global torch generator: under pytest-xdist which tests ran before one on its
+    worker varies from run to run, and a model built from the global generator would vary with it (a check that FTML
+    lowers its loss once failed that way)."""
+    torch.manual_seed(0)

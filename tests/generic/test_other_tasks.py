@@ -337,6 +337,9 @@ def test_plain_model_learns_a_linear_system_and_adapts_to_a_changed_one() -> Non
 
 @pytest.mark.slow
 def test_ftml_and_ensemble_train_a_plain_model() -> None:
+    # the models' initial weights come from the global generator: seeded here, or they depend on which tests ran
+    # before in this worker (with 40 steps the loss fell by 5-10 % and once rose under pytest-xdist)
+    torch.manual_seed(0)
     buffers = RoundBuffers(L=3, seed=0)
     for r, gain in enumerate((1.0, -1.0, 0.5, -0.5)):
         buffers.add(r, _linear_trajectory(gain, 30, 2 * r), tau=True)
@@ -344,7 +347,7 @@ def test_ftml_and_ensemble_train_a_plain_model() -> None:
     config = TrainConfig(batch=16, L=3, K=1, hidden=[16], alpha=0.05)
     trainer = FTMLTrainer(DynamicsModel(state_dim=2, n_actions=3, K=1, hidden=(16,)), buffers, config, seed=0)
     trainer.fit_normalization()
-    losses = trainer.train(40, meta=True)
+    losses = trainer.train(120, meta=True)  # 25-40 % lower over the last 5 steps than the first 5, for 12 seeds
     assert all(torch.isfinite(torch.tensor(losses))) and sum(losses[-5:]) < sum(losses[:5])
     assert trainer.round_loss(1, adapted=True) < trainer.round_loss(1, adapted=False)
     ensemble = EnsembleTrainer(lambda: DynamicsModel(state_dim=2, n_actions=3, K=1, hidden=(16,)), buffers,
