@@ -7,13 +7,13 @@ reason. The sweep (the ``personal_sweep`` preset, the average driver with its re
     .venv/bin/python -m recipes.benchmarks.adapt_driver_judge sweep runs/look_sweep_s23*
 
 writes ``docs/figures/adapt_driver/look_sweep.json`` and ``look_sweep_leads.png`` (``--out DIR``: elsewhere) and
-prints the figures and whether each target is met. The paper look (the ``paper`` preset, one study per town; the
-registration's ``second_look``, seed 1):
+prints the figures and whether each target is met. A paper look (the ``paper`` preset, one study per town; the
+registration's latest, ``third_look``, seed 2):
 
-    for t in Town1 Town2 Town3 Town4 Town5; do pernav study --preset paper --towns $t --seed 1 \
-        --methods explore adapt_driver --out runs/look2_paper/$t --workers 2; done
-    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge paper --entry second_look --name look_paper_second \
-        runs/look2_paper/Town*
+    for t in Town1 Town2 Town3 Town4 Town5; do pernav study --preset paper --towns $t --seed 2 \
+        --methods explore adapt_driver --out runs/look3_paper/$t --workers 2; done
+    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge paper --entry third_look --name look_paper_third \
+        runs/look3_paper/Town*
 
 writes ``docs/figures/adapt_driver/<name>.json`` (``--entry``: the registration's entry whose seeds and targets
 judge, default ``first_look``; ``--name``: the file, default ``look_paper``).
@@ -115,13 +115,12 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
     lines = []
     for town, t in towns.items():
         d, s, c = t["explore_minus_adapt_driver"], t["as_share_of_explore"], t["adapt_driver_vs_explore"]
+        hit = t["adapt_driver_minus_explore_collisions"]
         lines.append(f"{town} ({t['episodes']} paired episodes): explore - adapt_driver {d['mean']:+.1f} [{d['low']:+.1f}, "
                      f"{d['high']:+.1f}] per episode ({100 * s['mean']:+.1f} % [{100 * s['low']:+.1f} %, "
                      f"{100 * s['high']:+.1f} %] of explore's {t['explore_mean_cost']:.0f}); adapt_driver (explore): "
                      + ", ".join(f"{k} {a} ({b})" for k, (a, b) in c.items() if k != "turn_lead_mean")
-                     + f"; collisions per episode {t['adapt_driver_minus_explore_collisions']['mean']:+.3f} "
-                     f"[{t['adapt_driver_minus_explore_collisions']['low']:+.3f}, "
-                     f"{t['adapt_driver_minus_explore_collisions']['high']:+.3f}]; met: "
+                     + f"; collisions per episode {hit['mean']:+.3f} [{hit['low']:+.3f}, {hit['high']:+.3f}]; met: "
                      + ", ".join(f"{k} {'yes' if v['met'] else 'no'}" for k, v in t["verdict"].items()))
     return lines
 

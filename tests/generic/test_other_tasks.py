@@ -337,9 +337,6 @@ def test_plain_model_learns_a_linear_system_and_adapts_to_a_changed_one() -> Non
 
 @pytest.mark.slow
 def test_ftml_and_ensemble_train_a_plain_model() -> None:
-    # the models' initial weights come from the global generator: seeded here, or they depend on which tests ran
-    # before in this worker (with 40 steps the loss fell by 5-10 % and once rose under pytest-xdist)
-    torch.manual_seed(0)
     buffers = RoundBuffers(L=3, seed=0)
     for r, gain in enumerate((1.0, -1.0, 0.5, -0.5)):
         buffers.add(r, _linear_trajectory(gain, 30, 2 * r), tau=True)
