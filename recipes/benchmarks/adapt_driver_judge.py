@@ -16,7 +16,17 @@ registration's latest, ``third_look``, seed 2):
         runs/look3_paper/Town*
 
 writes ``docs/figures/adapt_driver/<name>.json`` (``--entry``: the registration's entry whose seeds and targets
-judge, default ``first_look``; ``--name``: the file, default ``look_paper``).
+judge, default ``first_look``; ``--name``: the file, default ``look_paper``). The split and the headroom looks (the
+``split`` and ``personal`` presets; slow drivers are the late cells, quick ones the on-time cells):
+
+    for s in $(seq 148 163); do pernav study --preset split --seed $s \
+        --methods explore timing belief adapt_driver best_shift oracle --out runs/look_split/seed$s --workers 2; done
+    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge split runs/look_split/seed*
+    for s in $(seq 320 325); do pernav study --preset personal --seed $s \
+        --methods explore timing belief adapt_driver best_shift oracle --out runs/look_headroom/seed$s --workers 2; done
+    .venv/bin/python -m recipes.benchmarks.adapt_driver_judge headroom runs/look_headroom/seed*
+
+write ``docs/figures/adapt_driver/look_split.json`` and ``look_headroom.json`` (``--name``: another file).
 """
 
 from __future__ import annotations
@@ -26,12 +36,17 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pernav.study.stats import paired_difference
+from pernav.study.benchmarks import classify, episodes, personal_schedule, split_schedule
+from pernav.study.stats import gap_closed, paired_difference, paired_ratio
 from recipes.benchmarks import follow
 from recipes.benchmarks.registered import registration
 
 OUT = Path("docs/figures/adapt_driver")
 SWEEP_METHODS = ("explore", "timing", "belief", "adapt_driver", "oracle")
+#: the split and headroom looks: the preset each runs and the schedule its cells (and their classes) come from
+PERSONAL_LOOKS = {"split": ("split", split_schedule), "headroom": ("personal", personal_schedule)}
+#: the methods every episode of a split or headroom look must have driven
+PERSONAL_METHODS = ("explore", "timing", "belief", "adapt_driver", "best_shift")
 
 
 def sweep(runs: list[dict[str, Any]], out: Path = OUT) -> list[str]:
@@ -125,6 +140,101 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
     return lines
 
 
+def personal(runs: list[dict[str, Any]], bench: str, look: dict[str, Any], targets: dict[str, Any],
+             out: Path = OUT, name: str | None = None) -> list[str]:
+    """The split or headroom look (``bench``) of ``adapt_driver`` against ``targets``, on the paired episodes that
+    every method of :data:`PERSONAL_METHODS` drove on ``look``'s seeds: over all drivers, its cost over the cheaper
+    of belief and timing (the one whose mean over these episodes is lower, chosen once for the whole look); on the
+    quick drivers' (on-time) cells its cost over explore's; on the slow drivers' (late) cells the share of explore's
+    cost above ``best_shift``'s that it removes; collisions over explore's (paired 95 % bootstrap CIs). Writes
+    ``<out>/look_<bench>.json`` (or ``<name>.json``)."""
+    preset, schedule = PERSONAL_LOOKS[bench]
+    seeds, towns = set(), set()
+    for res in runs:
+        cfg = res["config"]
+        if cfg.get("preset") != preset or cfg.get("seed") not in look["seeds"]:
+            raise ValueError(f"the {bench} look is registered on the {preset} preset, seeds {look['seeds']}; this run "
+                             f"is {cfg.get('preset')!r} seed {cfg.get('seed')}")
+        seeds.add(cfg["seed"])
+        towns.update(cfg["towns"])
+    if sorted(seeds) != sorted(look["seeds"]):
+        raise ValueError(f"the {bench} look is registered on seeds {look['seeds']}; these runs are {sorted(seeds)}")
+    late = {(c["town"], c["round"]): c["late"] for c in classify(schedule(), sorted(towns))}
+    pairs = {k: v for k, v in episodes(runs).items() if (k[1], k[2]) in late and set(PERSONAL_METHODS) <= set(v)}
+
+    def keys(want: bool | None) -> list[tuple]:
+        return sorted(k for k in pairs if want is None or late[(k[1], k[2])] == want)
+
+    def values(ks: list[tuple], method: str, field: str = "tracking_cost") -> list[float]:
+        return [float(pairs[k][method][field]) for k in ks]
+
+    every, quick, slow = keys(None), keys(False), keys(True)
+    if not (quick and slow):
+        raise ValueError(f"the {bench} look needs episodes of every method {PERSONAL_METHODS} in both classes of cell")
+    means = {m: sum(values(every, m)) / len(every) for m in ("belief", "timing")}
+    best = min(means, key=means.__getitem__)
+    figures: dict[str, Any] = {
+        "look": name or f"look_{bench}", "seeds": sorted(seeds), "towns": sorted(towns),
+        "episodes": {"all": len(every), "quick": len(quick), "slow": len(slow)},
+        # the oracle is a further reference where the runs drove it (the targets do not use it)
+        "mean_cost": {c: {m: sum(values(ks, m)) / len(ks) for m in (*PERSONAL_METHODS, "oracle")
+                          if all(m in pairs[k] for k in ks)}
+                      for c, ks in (("all", every), ("quick", quick), ("slow", slow))},
+        "cheaper_learner": best,
+        "all_over_learner": {m: paired_ratio(values(every, "adapt_driver"), values(every, m)) for m in means},
+        "quick_over_explore": paired_ratio(values(quick, "adapt_driver"), values(quick, "explore")),
+        "slow_best_shift_gain": paired_difference(values(slow, "explore"), values(slow, "best_shift")),
+        "slow_gap_closed": gap_closed(values(slow, "explore"), values(slow, "adapt_driver"),
+                                      values(slow, "best_shift")),
+        "collisions": {"adapt_driver": sum(values(every, "adapt_driver", "collisions")),
+                       "explore": sum(values(every, "explore", "collisions")),
+                       "adapt_driver_minus_explore": paired_difference(values(every, "adapt_driver", "collisions"),
+                                                                       values(every, "explore", "collisions"))},
+        "per_town": {t: {"slow_gap_closed": gap_closed(*(values([k for k in slow if k[1] == t], m)
+                                                         for m in ("explore", "adapt_driver", "best_shift"))),
+                         "quick_over_explore": paired_ratio(*(values([k for k in quick if k[1] == t], m)
+                                                              for m in ("adapt_driver", "explore")))}
+                     for t in sorted(towns)}}
+    a, q, g = figures["all_over_learner"][best], figures["quick_over_explore"], figures["slow_gap_closed"]
+    hit = figures["collisions"]["adapt_driver_minus_explore"]
+    t = targets
+    figures["verdict"] = {
+        "all_against_best_learner": {"target": t["all_against_best_learner"]["point"],
+                                     "target_ci_high": t["all_against_best_learner"]["ci_high"],
+                                     "met": a["mean"] <= t["all_against_best_learner"]["point"]
+                                     and a["high"] <= t["all_against_best_learner"]["ci_high"]},
+        "quick_cost_ratio": {"target": t["quick_cost_ratio"]["point"],
+                             "met": q["mean"] <= t["quick_cost_ratio"]["point"]},
+        "slow_gap_to_best_shift": {"target": t["slow_gap_to_best_shift"]["point"],
+                                   "target_ci_low": t["slow_gap_to_best_shift"]["ci_low"],
+                                   # NaN (best_shift no cheaper than explore on the slow cells) meets nothing
+                                   "met": bool(g["mean"] >= t["slow_gap_to_best_shift"]["point"]
+                                               and g["low"] > t["slow_gap_to_best_shift"]["ci_low"])},
+        "collisions": {"met": hit["low"] <= 0.0}}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / f"{figures['look']}.json").write_text(json.dumps(figures, indent=1) + "\n")
+
+    def ci(x: dict[str, float], scale: float = 1.0, fmt: str = "{:.3f}") -> str:
+        m, lo, hi = (fmt.format(x[k] * scale) for k in ("mean", "low", "high"))
+        return f"{m} [{lo}, {hi}]"
+
+    other = "timing" if best == "belief" else "belief"
+    lines = [f"{bench}: seeds {min(seeds)}-{max(seeds)} ({len(seeds)}), {len(every)} paired episodes "
+             f"({len(quick)} quick, {len(slow)} slow)",
+             f"all drivers: adapt_driver / {best} (the cheaper) {ci(a)}; adapt_driver / {other} "
+             f"{ci(figures['all_over_learner'][other])}",
+             f"quick drivers: adapt_driver / explore {ci(q)}",
+             f"slow drivers: explore - best_shift {ci(figures['slow_best_shift_gain'], 1, '{:+.1f}')} per episode; "
+             f"gap closed by adapt_driver {ci(g, 100, '{:.0f}')} %",
+             f"collisions: adapt_driver {figures['collisions']['adapt_driver']:.0f}, explore "
+             f"{figures['collisions']['explore']:.0f}; per episode {ci(hit, 1, '{:+.3f}')}"]
+    for town, f in figures["per_town"].items():
+        lines.append(f"  {town}: slow gap closed {ci(f['slow_gap_closed'], 100, '{:.0f}')} %, quick adapt_driver / "
+                     f"explore {ci(f['quick_over_explore'])}")
+    lines += [f"{k}: {'met' if v['met'] else 'not met'}" for k, v in figures["verdict"].items()]
+    return lines
+
+
 def _fail(message: str) -> None:
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(2)
@@ -144,14 +254,25 @@ def main() -> None:
             options[flag] = args[i + 1]
             del args[i: i + 2]
     name, entry = options["--name"], options["--entry"]
+    if not args:
+        _fail("name a look (sweep, paper, split, headroom) and its runs")
     look, paths = args[0], args[1:]
-    if look not in ("sweep", "paper"):
-        _fail(f"unknown look {look!r}; judged here: sweep, paper")
+    if look not in ("sweep", "paper", *PERSONAL_LOOKS):
+        _fail(f"unknown look {look!r}; judged here: sweep, paper, split, headroom")
     runs = [json.loads((Path(p) / "results.json").read_text()) for p in paths]
     if look == "sweep":
         print("\n".join(sweep(runs, out)))
         return
     looks = registration("adapt_driver")
+    if look in PERSONAL_LOOKS:
+        if look not in looks[entry]:
+            _fail(f"the registration's entry {entry!r} has no {look} look")
+        try:
+            print("\n".join(personal(runs, look, looks[entry][look], looks[entry]["targets"], out,
+                                     None if options["--name"] == "look_paper" else name)))
+        except ValueError as e:  # runs that are not the registered look: say which, no traceback
+            _fail(str(e))
+        return
     if entry not in looks or "paper" not in looks[entry]:
         _fail(f"the registration has no paper look {entry!r}; it has: "
               + ", ".join(k for k, v in looks.items() if "paper" in v))
