@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import random
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,9 +34,18 @@ from pernav.learners.belief import (
 )
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector, TurnOutcome, turn_outcomes
 from pernav.trainer.collect import derive_seed
+from pernav.world.constants import TURNS
 from pernav.world.drivers import DriverProfile, Population, resolve
 
-__all__ = ["LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "label", "labelled_drive", "labelled_drives"]
+__all__ = ["EARLY_LEADS", "EarlyTurn", "LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "fit_memory",
+           "label", "late_probability_each", "labelled_drive", "labelled_drives", "memory_probability", "outcome_rows"]
+
+#: how far ahead in explore's plan (steps) the offline early-turn drives say each "turn", one lead per drive in turn:
+#: from explore's own lead to past what ``adapt_driver``'s planner reaches (docs/research/scripts/turn_memory.py)
+EARLY_LEADS = (6, 9, 12)
+#: the memory medians (s) and log-SDs :func:`fit_memory` weighs (and none: a "turn" is never lost)
+MEMORY_MEDIANS = tuple(float(m) for m in np.arange(3.0, 30.5, 0.5))
+MEMORY_LOG_SDS = (0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 
 
 @dataclass
@@ -54,8 +63,10 @@ class LabelledDrive:
 
 
 def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, seed: int,
-                   config: Mapping[str, Any] | None = None) -> LabelledDrive:
-    """Drive explore's prompts for one simulated driver and label each answer window with its true frame."""
+                   config: Mapping[str, Any] | None = None,
+                   policy: Callable[[Mapping[str, Any]], int] | None = None) -> LabelledDrive:
+    """Drive explore's prompts for one simulated driver and label each answer window with its true frame; with
+    ``policy``, its action from each step's env info instead (e.g. explore re-timed: what an early prompt does)."""
     env = NavigationEnv(town, config=dict(config or {}))
     _, info = env.reset(seed=seed, options={"route": route, "user": profile, "context": context})
     ego = env.world.ego
@@ -71,7 +82,7 @@ def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, 
     ego.hear = recording_hear
     steps, done, swerves = [], False, 0
     while not done:
-        action = int(info["explore_action"])
+        action = int(policy(info)) if policy is not None else int(info["explore_action"])
         _, _, terminated, truncated, info = env.step(action)
         done = terminated or truncated
         steps.append({"instruction": action, "played": bool(info["played"]), "prompt_start": info["prompt_start"],
@@ -90,6 +101,36 @@ def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, 
                          driver.decision_time, steps, took_effect)
 
 
+class EarlyTurn:
+    """A policy for :func:`labelled_drive`: explore, but each "turn" said as soon as it is ``lead`` steps ahead in
+    explore's plan, and left unsaid when explore would say it (an early "turn", then explore's other prompts: what
+    ``adapt_driver``'s planner does). Make one per drive.
+
+    >>> policy = EarlyTurn(3)
+    >>> policy({"explore_action": 0, "explore_future": [0, 0, 0, 2, 2]})   # 3 steps ahead: said now
+    2
+    >>> policy({"explore_action": 2, "explore_future": [2]})                # explore says it now: not again
+    0
+    """
+
+    def __init__(self, lead: int) -> None:
+        if lead < 1:
+            raise ValueError(f"lead must be at least 1 step; got {lead}")
+        self.lead, self.pending = int(lead), None
+
+    def __call__(self, info: Mapping[str, Any]) -> int:
+        action, future = int(info["explore_action"]), [int(a) for a in info["explore_future"]]
+        if self.pending is not None and action == self.pending:  # explore says it now: it was said already
+            self.pending = None
+            return 0
+        if self.pending is None and action not in TURNS:
+            ahead = next((a for a in future[1: self.lead + 1] if a in TURNS), None)
+            if ahead is not None:
+                self.pending = ahead
+                return ahead
+        return action
+
+
 def label(answer: Answer, at: float | None) -> int:
     """The candidate frame of ``answer`` at which its prompt took effect at time ``at`` (the first frame at or after
     it), or ``-1``: it took none (``at`` None) or not inside the window."""
@@ -100,14 +141,17 @@ def label(answer: Answer, at: float | None) -> int:
 
 
 def labelled_drives(town: str, n: int, population_seed: int, seed: int,
-                    config: Mapping[str, Any] | None = None, progress: bool = False) -> list[LabelledDrive]:
-    """``n`` drivers of ``Population(seed=population_seed)``, one explore drive each on a route drawn from ``seed``."""
+                    config: Mapping[str, Any] | None = None, progress: bool = False,
+                    policy: Callable[[int], Callable[[Mapping[str, Any]], int]] | None = None,
+                    desc: str = "belief offline drives") -> list[LabelledDrive]:
+    """``n`` drivers of ``Population(seed=population_seed)``, one explore drive each on a route drawn from ``seed``
+    (with ``policy``, drive ``k``'s policy is ``policy(k)``: :func:`labelled_drive`'s)."""
     population, rng = Population(seed=population_seed), random.Random(seed)
     out = []
-    for k in tqdm(range(n), desc=f"{town} belief offline drives", leave=False, disable=not progress):
+    for k in tqdm(range(n), desc=f"{town} {desc}", leave=False, disable=not progress):
         profile, context = population.sample()
         out.append(labelled_drive(town, profile, context, rng.randrange(10), derive_seed(seed, town, "belief", k),
-                                  config))
+                                  config, policy(k) if policy is not None else None))
     return out
 
 
@@ -142,15 +186,9 @@ def fit_decision(drives: list[LabelledDrive]) -> tuple[SwerveDetector, DecisionP
     maximum likelihood on the drives' turn outcomes under each driver's true ``R`` and ``D``."""
     swerve = SwerveDetector().fit([(torch.from_numpy(np.stack([s["frames"] for s in d.steps])),
                                     torch.tensor([float(s["swerve"]) for s in d.steps])) for d in drives])
-    rows = [(o.room, o.late, d.reaction_time, d.decision_time) for d in drives for o in drive_outcomes(d, swerve)]
     D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
-    if not rows:
-        raise ValueError("no announced junction in the offline drives: cannot fit the decision time's likelihood")
-    # each outcome's room at its driver's own decision time (interpolated on the grid), under its own reaction time
-    room = torch.stack([torch.from_numpy(np.interp([Dt], DECISION_GRID.numpy(), r.numpy())) for r, _, _, Dt in rows])
-    late = torch.tensor([bool(x) for _, x, _, _ in rows])
-    R = torch.tensor([r for _, _, r, _ in rows], dtype=torch.float64)
-    p_late = torch.stack([late_probability(R[i: i + 1].log(), room[i])[0, 0] for i in range(len(rows))])
+    room, late, R = outcome_rows(drives, swerve)
+    p_late = late_probability_each(R, room)
     best = None
     for hit in torch.arange(0.05, 1.0, 0.025, dtype=torch.float64):
         for false in (0.001, 0.002, 0.005, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12):
@@ -160,3 +198,65 @@ def fit_decision(drives: list[LabelledDrive]) -> tuple[SwerveDetector, DecisionP
                 best = (ll, float(hit), false)
     _, hit, false = best
     return swerve, DecisionPrior(float(D.mean()), float(D.std()), round(hit, 4), false)
+
+
+def outcome_rows(drives: list[LabelledDrive], swerve: SwerveDetector
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(room, late, R)`` ``[O]`` of every announced junction in ``drives``: the room at its driver's own decision time
+    (interpolated on the grid), whether a swerve or a miss followed, and the driver's true mean reaction time."""
+    rows = [(o.room, o.late, d.reaction_time, d.decision_time) for d in drives for o in drive_outcomes(d, swerve)]
+    if not rows:
+        raise ValueError("no announced junction in the offline drives: cannot fit the decision time's likelihood")
+    room = torch.cat([torch.from_numpy(np.interp([Dt], DECISION_GRID.numpy(), r.numpy())) for r, _, _, Dt in rows])
+    late = torch.tensor([bool(x) for _, x, _, _ in rows])
+    return room, late, torch.tensor([r for _, _, r, _ in rows], dtype=torch.float64)
+
+
+def late_probability_each(R: torch.Tensor, room: torch.Tensor) -> torch.Tensor:
+    """``[O]``: :func:`~pernav.learners.belief.late_probability` of each outcome under its own mean reaction ``R``."""
+    return torch.stack([late_probability(R[i: i + 1].log(), room[i: i + 1])[0, 0] for i in range(len(room))])
+
+
+def memory_probability(held: torch.Tensor, median: float, log_sd: float) -> torch.Tensor:
+    """The probability that a "turn" in effect ``held`` s before the driver commits is lost by then: the driver keeps it
+    in mind a lognormal time (``median``, ``log_sd``; an infinite median: never lost).
+
+    >>> [round(float(p), 2) for p in memory_probability(torch.tensor([-1.0, 5.0, 10.0]), 10.0, 0.3)]
+    [0.0, 0.01, 0.5]
+    """
+    held = torch.as_tensor(held, dtype=torch.float64)
+    if not math.isfinite(median):
+        return torch.zeros_like(held)
+    z = (held.clamp(min=1e-3).log() - math.log(median)) / log_sd
+    return torch.where(held > 0, 0.5 * torch.erfc(-z / math.sqrt(2)), torch.zeros_like(z))
+
+
+def fit_memory(room: torch.Tensor, late: torch.Tensor, R: torch.Tensor, hit: float, false: float
+               ) -> tuple[float, float, float]:
+    """``(median, log_sd, gain)``: how long a driver keeps a "turn" in mind before it commits, by maximum likelihood
+    on announced junctions' outcomes (:func:`outcome_rows` of early-turn drives, :class:`EarlyTurn`: ``room`` at the
+    driver's own decision time, ``late``, the driver's true mean reaction ``R``): an outcome is late if the prompt came
+    after the commit or was held longer than the memory (:func:`memory_probability`, at the time from its mean effect
+    to the commit), and shows with ``hit`` or ``false`` (:func:`fit_decision`'s). ``gain``: the log likelihood over no
+    memory (median ``inf``, which it returns where no memory is more likely).
+
+    >>> room = torch.tensor([3.0, 6.0, 14.0, 15.0] * 20, dtype=torch.float64)
+    >>> late = torch.tensor([False, False, True, True] * 20)
+    >>> median, log_sd, gain = fit_memory(room, late, torch.ones(80, dtype=torch.float64), 0.9, 0.01)
+    >>> 5.0 < median < 13.0 and gain > 0
+    True
+    """
+    p_react, held = late_probability_each(R, room), room - R
+
+    def loglik(p: torch.Tensor) -> float:
+        p = false + (hit - false) * p
+        return float(torch.where(late, p, 1 - p).clamp(min=1e-300).log().sum())
+
+    base = loglik(p_react)
+    best = (base, math.inf, 0.0)
+    for median in MEMORY_MEDIANS:
+        for log_sd in MEMORY_LOG_SDS:
+            ll = loglik(p_react + (1 - p_react) * memory_probability(held, median, log_sd))
+            if ll > best[0]:
+                best = (ll, median, log_sd)
+    return best[1], best[2], best[0] - base

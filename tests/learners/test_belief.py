@@ -13,6 +13,7 @@ from pernav.env.torchrl_env import explore_module
 from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.learners.belief import DT, SIGMA, BeliefTracker, ReactionBelief
 from pernav.trainer.collect import drive, history_env
+from pernav.world.constants import TURNS
 from pernav.world.drivers import Context, DriverProfile
 
 
@@ -193,3 +194,16 @@ def test_a_late_deciding_driver_gets_a_later_decision_time_from_its_junctions_ou
     assert late.belief.outcomes > 0 and early.belief.outcomes > 0
     assert late.belief.decision_mean > early.belief.decision_mean + 0.3
     assert late.fields().get("decision_time", 0.0) > early.fields().get("decision_time", 0.0)
+
+
+def test_a_labelled_drive_plays_the_given_policy_s_prompts_and_labels_them():
+    from pernav.learners.answers import labelled_drive
+
+    def turns(policy) -> list[float]:
+        d = labelled_drive("Town1", DriverProfile(reaction_time=1.0), Context(), 1, 5, {"n_traffic": 0}, policy)
+        return [s["time"] for s in d.steps if s["played"] and s["instruction"] in TURNS]
+
+    # explore's rule three steps early (its plan ahead, best_shift's family): its first "turn" comes sooner (explore's
+    # plan is imagined at the car's speed now, so not exactly 3 s sooner); a silent policy says nothing
+    assert turns(lambda info: int(info["explore_future"][3]))[0] < turns(None)[0]
+    assert turns(lambda info: 0) == []
