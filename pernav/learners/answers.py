@@ -37,15 +37,9 @@ from pernav.trainer.collect import derive_seed
 from pernav.world.constants import TURNS
 from pernav.world.drivers import DriverProfile, Population, resolve
 
-__all__ = ["EARLY_LEADS", "EarlyTurn", "LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "fit_memory",
-           "label", "late_probability_each", "labelled_drive", "labelled_drives", "memory_probability", "outcome_rows"]
+__all__ = ["EarlyTurn", "LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "label",
+           "late_probability_each", "labelled_drive", "labelled_drives", "outcome_rows"]
 
-#: how far ahead in explore's plan (steps) the offline early-turn drives say each "turn", one lead per drive in turn:
-#: from explore's own lead to past what ``adapt_driver``'s planner reaches (docs/research/scripts/turn_memory.py)
-EARLY_LEADS = (6, 9, 12)
-#: the memory medians (s) and log-SDs :func:`fit_memory` weighs (and none: a "turn" is never lost)
-MEMORY_MEDIANS = tuple(float(m) for m in np.arange(3.0, 30.5, 0.5))
-MEMORY_LOG_SDS = (0.1, 0.2, 0.3, 0.5, 0.75, 1.0)
 
 
 @dataclass
@@ -216,47 +210,3 @@ def late_probability_each(R: torch.Tensor, room: torch.Tensor) -> torch.Tensor:
     """``[O]``: :func:`~pernav.learners.belief.late_probability` of each outcome under its own mean reaction ``R``."""
     return torch.stack([late_probability(R[i: i + 1].log(), room[i: i + 1])[0, 0] for i in range(len(room))])
 
-
-def memory_probability(held: torch.Tensor, median: float, log_sd: float) -> torch.Tensor:
-    """The probability that a "turn" in effect ``held`` s before the driver commits is lost by then: the driver keeps it
-    in mind a lognormal time (``median``, ``log_sd``; an infinite median: never lost).
-
-    >>> [round(float(p), 2) for p in memory_probability(torch.tensor([-1.0, 5.0, 10.0]), 10.0, 0.3)]
-    [0.0, 0.01, 0.5]
-    """
-    held = torch.as_tensor(held, dtype=torch.float64)
-    if not math.isfinite(median):
-        return torch.zeros_like(held)
-    z = (held.clamp(min=1e-3).log() - math.log(median)) / log_sd
-    return torch.where(held > 0, 0.5 * torch.erfc(-z / math.sqrt(2)), torch.zeros_like(z))
-
-
-def fit_memory(room: torch.Tensor, late: torch.Tensor, R: torch.Tensor, hit: float, false: float
-               ) -> tuple[float, float, float]:
-    """``(median, log_sd, gain)``: how long a driver keeps a "turn" in mind before it commits, by maximum likelihood
-    on announced junctions' outcomes (:func:`outcome_rows` of early-turn drives, :class:`EarlyTurn`: ``room`` at the
-    driver's own decision time, ``late``, the driver's true mean reaction ``R``): an outcome is late if the prompt came
-    after the commit or was held longer than the memory (:func:`memory_probability`, at the time from its mean effect
-    to the commit), and shows with ``hit`` or ``false`` (:func:`fit_decision`'s). ``gain``: the log likelihood over no
-    memory (median ``inf``, which it returns where no memory is more likely).
-
-    >>> room = torch.tensor([3.0, 6.0, 14.0, 15.0] * 20, dtype=torch.float64)
-    >>> late = torch.tensor([False, False, True, True] * 20)
-    >>> median, log_sd, gain = fit_memory(room, late, torch.ones(80, dtype=torch.float64), 0.9, 0.01)
-    >>> 5.0 < median < 13.0 and gain > 0
-    True
-    """
-    p_react, held = late_probability_each(R, room), room - R
-
-    def loglik(p: torch.Tensor) -> float:
-        p = false + (hit - false) * p
-        return float(torch.where(late, p, 1 - p).clamp(min=1e-300).log().sum())
-
-    base = loglik(p_react)
-    best = (base, math.inf, 0.0)
-    for median in MEMORY_MEDIANS:
-        for log_sd in MEMORY_LOG_SDS:
-            ll = loglik(p_react + (1 - p_react) * memory_probability(held, median, log_sd))
-            if ll > best[0]:
-                best = (ll, median, log_sd)
-    return best[1], best[2], best[0] - base

@@ -42,7 +42,6 @@ from tensordict.nn import TensorDictModuleBase
 
 from pernav.env.navigation import FRAME_KEYS
 from pernav.env.policies import explore_policy
-from pernav.learners.answers import memory_probability
 from pernav.learners.belief import DT, AnswerDetector, BeliefTracker
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector
 from pernav.model.driver import DriverImaginedEnv, DriverParams
@@ -174,8 +173,7 @@ class DriverPrior:
     ``sigma``, and the observation part's error rates: the detector's timing ``noise`` and share of misread answers
     ``outlier``; the probability ``hit`` that a late "turn" shows as a swerve or a miss, ``false`` that one in time
     seems to; the turn speed and braking the imagination uses where a drive shows none (:func:`read_response`); and
-    the share of its speed a driver slows to on a "prepare" (fitted offline); how long a driver keeps a "turn" in mind
-    before it commits (median and log-SD, fitted offline on early-turn drives; ``None``: never lost)."""
+    the share of its speed a driver slows to on a "prepare" (fitted offline)."""
 
     mean: tuple[float, float]
     sd: tuple[float, float]
@@ -187,8 +185,6 @@ class DriverPrior:
     turn_speed: float = 5.0
     brake: float = 2.0
     prepared: float = 0.75
-    memory: float | None = None
-    memory_sd: float = 0.0
 
     @classmethod
     def population(cls, log_r: tuple[float, float], decision: tuple[float, float], **rest: float) -> DriverPrior:
@@ -241,8 +237,7 @@ def nll(phi: torch.Tensor, evidence: Evidence, prior: DriverPrior) -> torch.Tens
     An answer: the prompt takes effect in candidate frame ``k`` with probability ``(1 - outlier) f(d_k) DT``
     (``f`` lognormal around ``R``, log-SD ``sigma`` widened by the detector's ``noise``), or shows none in the window
     with ``outlier + (1 - outlier) P(d beyond it)``, weighed by the detector's reading. An outcome: the prompt was
-    late (its delay beyond ``room`` at ``D``, or, with ``P``'s memory, held from its mean effect to the commit longer
-    than the driver keeps it in mind) shows as a swerve or miss with ``hit``, in time with ``false``."""
+    late (its delay beyond ``room`` at ``D``) shows as a swerve or miss with ``hit``, in time with ``false``."""
     log_r, decision = phi[0], phi[1]
     sigma = prior.sigma
     total = phi.new_zeros(())
@@ -263,8 +258,6 @@ def nll(phi: torch.Tensor, evidence: Evidence, prior: DriverPrior) -> torch.Tens
         r = room[:, i - 1] + (x - grid[i - 1]) / (grid[i] - grid[i - 1]) * (room[:, i] - room[:, i - 1])
         z = (torch.log(r.clamp(min=1e-3)) - (log_r - sigma**2 / 2)) / sigma
         p_late = torch.where(r > 0, 0.5 * torch.erfc(z / math.sqrt(2)), torch.ones_like(z))
-        if prior.memory is not None:  # or in time but held longer than the driver keeps a "turn" in mind
-            p_late = p_late + (1 - p_late) * memory_probability(r - log_r.exp(), prior.memory, prior.memory_sd)
         p_show = prior.false + (prior.hit - prior.false) * p_late
         total = total - torch.where(late, p_show, 1 - p_show).clamp(min=1e-300).log().sum()
     return total
@@ -441,14 +434,11 @@ class DriverBelief:
 
     def drivers(self) -> list[DriverParams]:
         """The imagination's driver row: the estimate, one prompt's spread widened by the estimate's own (the
-        predictive reaction time), the speeds read from the driver's drives, ``P``'s slowing on a "prepare" and
-        memory."""
+        predictive reaction time), the speeds read from the driver's drives, ``P``'s slowing on a "prepare"."""
         e, r = self.estimate, self.response
         sigma = math.sqrt(self.prior.sigma**2 + e.sd[0] ** 2)
-        memory = math.inf if self.prior.memory is None else self.prior.memory
         return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, r.turn_speed, r.brake, r.cruise,
-                             prepared=self.prior.prepared, accel=r.accel, memory=memory,
-                             memory_sd=self.prior.memory_sd)]
+                             prepared=self.prior.prepared, accel=r.accel)]
 
     def formula(self) -> dict[str, Any]:
         """The belief's formula on this estimate (the ablation "planner replaced by the belief's formula"): explore's

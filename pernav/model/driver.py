@@ -15,9 +15,6 @@ traffic):
   takes effect before that point changes nothing of the car's speed; it drives the turn at its turn speed;
 * a "turn" is in effect from its effect until the next "turn", "prepare" or "keep left" is said (the driver acts on
   the latest instruction, from the moment it is said: a "prepare" after a "turn" says the turn is still to come);
-* a driver keeps a "turn" in mind for its ``memory`` (s from the turn's effect; lognormal around a median with a log-SD
-  ``memory_sd``, a draw per row): one in effect longer than that when the driver commits is lost (no "turn" is in
-  effect then);
 * a "turn" or "prepare" names a side: one of the side the route does not turn to at the junction (read from the
   route's shape; not on a ring, whose exits are all "turn right") names the other branch, so it neither chooses nor
   prepares the route's, and such a "turn" supersedes the route's as any newer "turn" does;
@@ -118,16 +115,10 @@ class DriverParams:
     cruise: float = 10.0  # the speed it drives at between junctions
     prepared: float = 0.75  # the share of its cruise it slows to on a "prepare"
     accel: float = 1.5  # its acceleration back to cruise
-    memory: float = math.inf  # median time a "turn" stays in mind from its effect (inf: never lost)
-    memory_sd: float = 0.0  # log-SD of that time
 
     def tensor(self) -> torch.Tensor:
         return torch.tensor([self.reaction_time, self.decision_time, self.sigma, self.turn_speed, self.brake,
-                             self.cruise, self.prepared, self.accel, self.memory, self.memory_sd], dtype=torch.float64)
-
-
-PARAMS = len(DriverParams().tensor())  # a driver row's columns: the parameters, then whether a "prepare" alone
-FOLLOW, Z = PARAMS, PARAMS + 1  # chooses the branch (0 or 1) and the row's reaction-time quantile
+                             self.cruise, self.prepared, self.accel], dtype=torch.float64)
 
 
 QUANTILES = (-1.2816, -0.5244, 0.0, 0.5244, 1.2816)  # standard-normal quantiles of one prompt's reaction draw
@@ -284,10 +275,9 @@ def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, take
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
-    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 12]``: the ten
+    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 10]``: the eight
     :class:`DriverParams` fields, whether a "prepare" alone chooses the branch (0 or 1) and the row's reaction-time
-    quantile ``z``. The row's memory is drawn at quantile ``z`` where a "prepare" alone chooses and at ``-z`` where
-    not: over the rows each reaction quantile meets two memory quantiles, and the two draws are uncorrelated.
+    quantile ``z``.
 
     ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
     ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
@@ -301,9 +291,8 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     M = drivers.shape[0]
     drivers = drivers.double()
     R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
-    follow, z = drivers[:, FOLLOW].reshape(M, 1), drivers[:, Z].reshape(M, 1)
+    follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
-    memory = drivers[:, 8].reshape(M, 1) * torch.exp(drivers[:, 9].reshape(M, 1) * torch.where(follow > 0, z, -z))
     v_turn, brake = drivers[:, 3].reshape(M, 1), drivers[:, 4].reshape(M, 1)
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
@@ -319,9 +308,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it
     # turns at: followed if a turn is in effect (on a ring where the route passes the exit, left if one is)
-    first = _Decision(s_first, (M, N), s_first <= start, heard_first, follow, memory, swerve=True, chosen=False) \
+    first = _Decision(s_first, (M, N), s_first <= start, heard_first, follow, swerve=True, chosen=False) \
         if through else None
-    junction = _Decision(s_junction, (M, N), s_junction <= start, heard, follow, memory, swerve=not ring, chosen=True,
+    junction = _Decision(s_junction, (M, N), s_junction <= start, heard, follow, swerve=not ring, chosen=True,
                          invert=passing)
     if ring and not in_ring:  # on the way in no branch is chosen; the driver sees the ring and slows for it
         first_turn = junction.prepared_by = torch.full_like(first_turn, -math.inf)
@@ -367,15 +356,13 @@ class _Decision:
     ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
     after the commit and before the car reaches the junction is swerved into where the car can still slow to its turn
     speed by the junction, braking hard (else it goes on: no driver throws a car into a turn at speed). ``heard``:
-    :func:`_effects` of the prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses; ``memory``
-    ``[M, 1]``: how long a "turn" stays in mind from its effect (one in effect longer than that is lost).
+    :func:`_effects` of the prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses.
     ``chosen`` ``[M, N]``: turned (with ``invert``: did not); its initial value where the junction was decided before
     the root (``decided``)."""
 
     def __init__(self, at: float, shape: tuple[int, int], decided: bool, heard: tuple, follow: torch.Tensor,
-                 memory: torch.Tensor, swerve: bool, chosen: bool, invert: bool = False) -> None:
+                 swerve: bool, chosen: bool, invert: bool = False) -> None:
         self.at, self.swerve, self.invert = at, swerve, invert
-        self.memory = memory.unsqueeze(-1)  # [M, 1, 1]
         _, first_prepare, self.turn_from, self.turn_until = heard
         self.prepared_by = torch.where(follow > 0, first_prepare, torch.full_like(first_prepare, math.inf))
         self.committed = torch.full(shape, decided)
@@ -385,10 +372,10 @@ class _Decision:
     def turns_at(self, point: torch.Tensor | float, s: torch.Tensor, v: torch.Tensor, t: float, dt: float,
                  prepare: bool = True) -> torch.Tensor:
         """``[M, N]``: whether the latest "turn" the driver heard (or, with ``prepare``, a followed "prepare") is in
-        effect, and still in mind, when it passes ``point`` (m); it was at ``s`` at ``t``: the moment is interpolated
-        within the last step ``dt`` (a "keep left" said a moment after the commit no longer counts)."""
+        effect when it passes ``point`` (m); it was at ``s`` at ``t``: the moment is interpolated within the last
+        step ``dt`` (a "keep left" said a moment after the commit no longer counts)."""
         at = (t - (s - point) / v.clamp(min=0.1)).clamp(min=t - dt).unsqueeze(-1)
-        turn = ((self.turn_from <= at) & (at < self.turn_until) & (at - self.turn_from <= self.memory)).any(-1)
+        turn = ((self.turn_from <= at) & (at < self.turn_until)).any(-1)
         return turn | (self.prepared_by <= at[..., 0]) if prepare else turn
 
     def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float,
@@ -434,12 +421,12 @@ def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, prepari
 
 class DriverImaginedEnv(EnvBase):
     """The hybrid world model as a planner's env: ``imagine(root, sequences, params)`` with ``params`` a list of
-    driver rows (:class:`DriverParams` or ``[10]`` tensors; each imagined at the reaction quantiles ``quantiles``),
+    driver rows (:class:`DriverParams` or ``[8]`` tensors; each imagined at the reaction quantiles ``quantiles``),
     or ``None``: :attr:`drivers`, set by whoever adapts the model (the planner reads it at every decision).
 
     >>> env = DriverImaginedEnv()
     >>> env.rows().shape
-    torch.Size([10, 12])
+    torch.Size([10, 10])
     """
 
     def __init__(self, drivers: list[DriverParams] | None = None, quantiles: tuple[float, ...] = QUANTILES) -> None:
@@ -462,7 +449,7 @@ class DriverImaginedEnv(EnvBase):
         pass
 
     def rows(self, params: list | None = None) -> torch.Tensor:
-        """``[M, 12]``: every driver row at every reaction quantile, with and without following a "prepare" alone."""
+        """``[M, 10]``: every driver row at every reaction quantile, with and without following a "prepare" alone."""
         drivers = params if params is not None else self.drivers
         base = torch.stack([d.tensor() if isinstance(d, DriverParams) else torch.as_tensor(d, dtype=torch.float64)
                             for d in drivers])

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from pernav.env.navigation import FRAME_KEYS
-from pernav.learners.answers import LabelledDrive, fit_memory, outcome_rows
+from pernav.learners.answers import LabelledDrive
 from pernav.learners.belief import AnswerDetector, detectors, frame_series
 from pernav.learners.driver import (
     DriverBelief,
@@ -106,26 +106,20 @@ def labelled_evidence(drive: LabelledDrive, prior: DriverPrior, detector: Answer
     return belief.evidence
 
 
-def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise: float, outlier: float,
-               early: list[LabelledDrive] | None = None) -> dict[str, Any]:
+def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise: float, outlier: float
+               ) -> dict[str, Any]:
     """The offline phase: ``P0``, the population's statistics (its drivers' ``log R`` and ``D``, known: they are
     simulated; one prompt's spread and the slowing on a "prepare" from their labelled answers; the belief's detectors
-    and error rates; with ``early``, drives of other simulated drivers with early "turn" prompts, how long a driver
-    keeps a "turn" in mind: :func:`~pernav.learners.answers.fit_memory`), and ``P``, ``P0`` meta-trained on
-    ``drives`` (each drive's first half adapts, its second half scores)."""
+    and error rates), and ``P``,
+    ``P0`` meta-trained on the same drivers (each drive's first half adapts, its second half scores)."""
     prior = belief_model["prior"]
     decision = prior["decision"]
     log_r = torch.tensor([math.log(d.reaction_time) for d in drives], dtype=torch.float64)
     D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
-    detector, swerve = detectors(belief_model)
-    hit, false = float(decision["hit"]), float(decision["false"])
-    memory, memory_sd = None, 0.0
-    if early and swerve is not None:
-        median, memory_sd, _ = fit_memory(*outcome_rows(early, swerve), hit, false)
-        memory = median if math.isfinite(median) else None
     p0 = DriverPrior((float(log_r.mean()), float(D.mean())), (float(log_r.std()), float(D.std())),
-                     sigma=_sigma(drives), noise=noise, outlier=outlier, hit=hit, false=false,
-                     prepared=_prepared(drives), memory=memory, memory_sd=memory_sd)
+                     sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
+                     false=float(decision["false"]), prepared=_prepared(drives))
+    detector, swerve = detectors(belief_model)
     pairs = [labelled_evidence(d, p0, detector, swerve).halves() for d in drives]
     meta = meta_train(p0, pairs)
     return {"detector": belief_model["detector"], "swerve": belief_model["swerve"], "prior0": p0.to_dict(),

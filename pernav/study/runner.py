@@ -40,7 +40,7 @@ from torchrl.record.loggers import CSVLogger
 from tqdm.auto import tqdm
 
 from pernav.env.torchrl_env import explore_module
-from pernav.learners.answers import EARLY_LEADS, EarlyTurn, fit_belief, labelled_drives
+from pernav.learners.answers import fit_belief, labelled_drives
 from pernav.learners.belief import BeliefTracker
 from pernav.learners.timing import TARGETS as TIMING_TARGETS
 from pernav.learners.timing import TimingModel, timing_features
@@ -250,8 +250,7 @@ def _offline_round(run: _Town, entry: Entry, index: int, rng: random.Random, rec
                 state.belief_model = _fit_belief(cfg, drives)
         if driver:  # the same simulated drivers: the detectors are the belief's; P0 and its offline meta-training
             with _Timer(run.profile, "adapt_driver_offline_s"):
-                state.driver = fit_driver(drives, state.belief_model, cfg.belief["noise"], cfg.belief["outlier"],
-                                          _early_turn_drives(cfg, run.town))
+                state.driver = fit_driver(drives, state.belief_model, cfg.belief["noise"], cfg.belief["outlier"])
         state.warm = copy.deepcopy({k: v.state() for k, v in run.learners.items()})  # not live tensors
 
 
@@ -475,17 +474,6 @@ def _labelled(cfg: StudyConfig, town: str) -> list[Any]:
     (known: they are simulated)."""
     return labelled_drives(town, int(cfg.belief["offline_drivers"]), derive_seed(cfg.seed, town, "belief", "population"),
                            derive_seed(cfg.seed, town, "belief", "routes"), cfg.world_config(), progress=True)
-
-
-def _early_turn_drives(cfg: StudyConfig, town: str) -> list[Any]:
-    """``adapt_driver``'s offline early-turn drives: half as many other simulated drivers of the population prior as
-    the belief's, each "turn" said early (:class:`~pernav.learners.answers.EarlyTurn`, the leads in turn), from which
-    ``P0`` reads how long a driver keeps a "turn" in mind."""
-    return labelled_drives(town, max(int(cfg.belief["offline_drivers"]) // 2, 1),
-                           derive_seed(cfg.seed, town, "driver", "population"),
-                           derive_seed(cfg.seed, town, "driver", "routes"),
-                           cfg.world_config(), progress=True, desc="adapt_driver early-turn drives",
-                           policy=lambda k: EarlyTurn(EARLY_LEADS[k % len(EARLY_LEADS)]))
 
 
 def _fit_belief(cfg: StudyConfig, drives: list[Any]) -> dict[str, Any]:

@@ -16,7 +16,6 @@ from pernav.learners.driver import (
     Evidence,
     adapt_phi,
     meta_train,
-    nll,
     read_response,
     tau_loss,
 )
@@ -107,33 +106,6 @@ def test_a_turn_known_before_the_braking_point_drives_the_same_and_one_known_too
     assert torch.allclose(pos[:, 0], pos[:, 1])
     assert bool((pos[:, :2, -1, 1] > 20.0).all())  # turned
     assert bool((pos[:, 2, -1, 0] > 140.0).all())  # went on past the junction
-
-
-def test_a_turn_held_longer_than_the_driver_s_memory_before_its_commit_is_lost():
-    from tensordict import TensorDict
-
-    route = torch.stack([torch.arange(160.0) * 3 - 15, torch.zeros(160)], -1)  # straight along x...
-    route[45:, 1] = (torch.arange(115.0) + 1) * 3
-    route[45:, 0] = route[44, 0]  # ...then right (+y), 120 m ahead
-    history = torch.zeros(5, 21)
-    history[:, 3] = 10.0
-    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(120.0)}, [])
-    turn = int(Instruction.TURN_RIGHT)
-    # said now and held: in effect from about 2.5 s (audio and reaction) to the commit 20 m before the junction
-    # (about 10 s on at 10 m/s), so held about 7.5 s; said after 6 s: held about 1.5 s
-    said = torch.stack([torch.cat([torch.full((1,), turn), torch.zeros(19, dtype=torch.long)]),
-                        torch.cat([torch.zeros(6, dtype=torch.long), torch.full((1,), turn),
-                                   torch.zeros(13, dtype=torch.long)])])
-
-    def turned(memory: float) -> list[bool]:
-        env = DriverImaginedEnv([DriverParams(reaction_time=1.0, decision_time=2.0, sigma=0.01, cruise=10.0,
-                                              memory=memory, memory_sd=0.01)], quantiles=(0.0,))
-        pos, _ = env.imagine(root, said)
-        return [bool((pos[:, n, -1, 0] < 125.0).all()) for n in range(2)]  # on the turned leg (x = 117), not on
-
-    assert turned(math.inf) == [True, True]  # never forgotten: both taken
-    assert turned(5.0) == [False, True]  # the early one is lost, the one said 6 s later is not
-    assert turned(1.0) == [False, False]
 
 
 def test_the_turn_speed_read_from_tau_follows_the_drivers():
@@ -443,32 +415,3 @@ def test_a_car_that_entered_the_ring_from_a_stop_drives_it_at_its_turn_speed_not
     pos, _ = env.imagine(root, plan[None])
     assert bool((_off_ring(pos[:, 0]) < 1.0).all())
     assert float((pos[0, 0, 1] - pos[0, 0, 0]).norm()) > 2.5  # it sped up: more than 1 m/s after the first second
-
-
-def test_fit_memory_recovers_a_known_memory_and_finds_none_where_no_turn_is_lost():
-    from pernav.learners.answers import fit_memory, late_probability_each, memory_probability
-
-    g = torch.Generator().manual_seed(0)
-    n, hit, false = 2000, 0.6, 0.03
-    R = torch.exp(0.2 + 0.3 * torch.randn(n, generator=g, dtype=torch.float64))
-    room = -1.0 + 17.0 * torch.rand(n, generator=g, dtype=torch.float64)
-    p_react = late_probability_each(R, room)
-    for truth in (9.0, None):
-        p = p_react if truth is None else p_react + (1 - p_react) * memory_probability(room - R, truth, 0.2)
-        late = torch.rand(n, generator=g, dtype=torch.float64) < false + (hit - false) * p
-        median, _, gain = fit_memory(room, late, R, hit, false)
-        if truth is None:  # nothing lost: no memory, or one too long to matter within the rooms seen
-            assert median > 14.0 or gain < 2.0
-        else:
-            assert 8.0 <= median <= 10.0 and gain > 20.0
-
-
-def test_with_a_memory_a_miss_after_a_long_held_turn_says_less_about_the_reaction_time():
-    prior = DriverPrior.population((0.2, 0.4), (2.0, 0.5), hit=0.6, false=0.02)
-    forgetful = DriverPrior.population((0.2, 0.4), (2.0, 0.5), hit=0.6, false=0.02, memory=8.0, memory_sd=0.2)
-    # a "turn" 12 s before the commit at every decision time, then a miss: late only if held too long
-    evidence = Evidence(outcomes=[(torch.full((len(DECISION_GRID),), 12.0, dtype=torch.float64), True)] * 3)
-    phi = prior.centre()
-    assert float(nll(phi, evidence, forgetful)) < float(nll(phi, evidence, prior))
-    # without a memory only a very slow reaction explains the misses; with it they need none
-    assert adapt_phi(prior, evidence).reaction_time > adapt_phi(forgetful, evidence).reaction_time
