@@ -41,7 +41,6 @@ __all__ = ["EarlyTurn", "LabelledDrive", "drive_outcomes", "fit_belief", "fit_de
            "late_probability_each", "labelled_drive", "labelled_drives", "outcome_rows"]
 
 
-
 @dataclass
 class LabelledDrive:
     """One explore drive of a simulated driver: its answer windows, each one's true frame (``-1``: no effect inside
@@ -195,7 +194,7 @@ def fit_decision(drives: list[LabelledDrive]) -> tuple[SwerveDetector, DecisionP
 
 
 def outcome_rows(drives: list[LabelledDrive], swerve: SwerveDetector
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(room, late, R)`` ``[O]`` of every announced junction in ``drives``: the room at its driver's own decision time
     (interpolated on the grid), whether a swerve or a miss followed, and the driver's true mean reaction time."""
     rows = [(o.room, o.late, d.reaction_time, d.decision_time) for d in drives for o in drive_outcomes(d, swerve)]
@@ -209,4 +208,3 @@ def outcome_rows(drives: list[LabelledDrive], swerve: SwerveDetector
 def late_probability_each(R: torch.Tensor, room: torch.Tensor) -> torch.Tensor:
     """``[O]``: :func:`~pernav.learners.belief.late_probability` of each outcome under its own mean reaction ``R``."""
     return torch.stack([late_probability(R[i: i + 1].log(), room[i: i + 1])[0, 0] for i in range(len(room))])
-
