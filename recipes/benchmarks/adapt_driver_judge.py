@@ -31,6 +31,7 @@ write ``docs/figures/adapt_driver/look_split.json`` and ``look_headroom.json`` (
 
 from __future__ import annotations
 
+import functools
 import json
 import sys
 from pathlib import Path
@@ -148,7 +149,7 @@ def personal(runs: list[dict[str, Any]], bench: str, look: dict[str, Any], targe
     quick drivers' (on-time) cells its cost over explore's; on the slow drivers' (late) cells the share of explore's
     cost above ``best_shift``'s that it removes; collisions over explore's (paired 95 % bootstrap CIs). Writes
     ``<out>/look_<bench>.json`` (or ``<name>.json``)."""
-    preset, schedule = PERSONAL_LOOKS[bench]
+    preset = PERSONAL_LOOKS[bench][0]
     seeds, towns = set(), set()
     for res in runs:
         cfg = res["config"]
@@ -159,7 +160,7 @@ def personal(runs: list[dict[str, Any]], bench: str, look: dict[str, Any], targe
         towns.update(cfg["towns"])
     if sorted(seeds) != sorted(look["seeds"]):
         raise ValueError(f"the {bench} look is registered on seeds {look['seeds']}; these runs are {sorted(seeds)}")
-    late = {(c["town"], c["round"]): c["late"] for c in classify(schedule(), sorted(towns))}
+    late = _classes(bench, tuple(sorted(towns)))
     pairs = {k: v for k, v in episodes(runs).items() if (k[1], k[2]) in late and set(PERSONAL_METHODS) <= set(v)}
 
     def keys(want: bool | None) -> list[tuple]:
@@ -233,6 +234,12 @@ def personal(runs: list[dict[str, Any]], bench: str, look: dict[str, Any], targe
                      f"explore {ci(f['quick_over_explore'])}")
     lines += [f"{k}: {'met' if v['met'] else 'not met'}" for k, v in figures["verdict"].items()]
     return lines
+
+
+@functools.lru_cache(maxsize=4)
+def _classes(bench: str, towns: tuple[str, ...]) -> dict[tuple[str, str], bool]:
+    """``{(town, round): late}`` of a split or headroom look's cells (simulates each driver's lateness: seconds)."""
+    return {(c["town"], c["round"]): c["late"] for c in classify(PERSONAL_LOOKS[bench][1](), list(towns))}
 
 
 def _fail(message: str) -> None:
