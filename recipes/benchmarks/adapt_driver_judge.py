@@ -26,7 +26,7 @@ judge, default ``first_look``; ``--name``: the file, default ``look_paper``). Th
         --methods explore timing belief adapt_driver best_shift oracle --out runs/look_headroom/seed$s --workers 2; done
     .venv/bin/python -m recipes.benchmarks.adapt_driver_judge headroom runs/look_headroom/seed*
 
-write ``docs/figures/adapt_driver/look_split.json`` and ``look_headroom.json`` (``--name``: another file).
+write ``look_split.json`` and ``look_headroom.json`` beside the paper looks' (``--name``: another file).
 """
 
 from __future__ import annotations

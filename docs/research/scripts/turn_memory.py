@@ -10,8 +10,8 @@ soon as it is ``lead`` steps ahead in explore's plan and not again (:class:`~per
 explore drives of other drivers): the room from the first "turn"'s audio end to the driver's commit at its decision
 time, and whether a swerve or a miss followed. Printed: the late share by cell and by the time the "turn" was held
 before the commit (room minus the mean reaction time), beside what the reaction-only likelihood (``false + (hit -
-false) P(delay > room)``) predicts and what it predicts with the memory that :func:`~pernav.learners.answers.fit_memory`
-fits on all of them (a "turn" held longer than a lognormal time before the commit is lost).
+false) P(delay > room)``) predicts and what it predicts with the memory that :func:`fit_memory` fits on all of them
+(a "turn" held longer than a lognormal time before the commit is lost).
 
     .venv/bin/python docs/research/scripts/turn_memory.py --towns Town1 Town5 --drivers 24
 """
