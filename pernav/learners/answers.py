@@ -135,13 +135,12 @@ def label(answer: Answer, at: float | None) -> int:
 
 def labelled_drives(town: str, n: int, population_seed: int, seed: int,
                     config: Mapping[str, Any] | None = None, progress: bool = False,
-                    policy: Callable[[int], Callable[[Mapping[str, Any]], int]] | None = None,
-                    desc: str = "belief offline drives") -> list[LabelledDrive]:
+                    policy: Callable[[int], Callable[[Mapping[str, Any]], int]] | None = None) -> list[LabelledDrive]:
     """``n`` drivers of ``Population(seed=population_seed)``, one explore drive each on a route drawn from ``seed``
     (with ``policy``, drive ``k``'s policy is ``policy(k)``: :func:`labelled_drive`'s)."""
     population, rng = Population(seed=population_seed), random.Random(seed)
     out = []
-    for k in tqdm(range(n), desc=f"{town} {desc}", leave=False, disable=not progress):
+    for k in tqdm(range(n), desc=f"{town} belief offline drives", leave=False, disable=not progress):
         profile, context = population.sample()
         out.append(labelled_drive(town, profile, context, rng.randrange(10), derive_seed(seed, town, "belief", k),
                                   config, policy(k) if policy is not None else None))
