@@ -75,11 +75,14 @@ class RetimingResult:
 
 
 def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, horizon: int, advance: int,
-                    delay: int) -> tuple[torch.Tensor, int]:
+                    delay: int, in_order: bool = False) -> tuple[torch.Tensor, int]:
     """The candidate instruction sequences ``[N, horizon]`` (unique) and the index of explore's own plan.
 
     ``future`` holds explore's instructions for the next steps (at least ``horizon + advance``), ``last``
-    the instruction played last step, ``allowed`` the instructions the situation allows now.
+    the instruction played last step, ``allowed`` the instructions the situation allows now. With ``in_order``
+    the fine choices keep explore's order as the advances do: an instruction said now is a candidate only if it
+    skips none that explore would say before it within reach (a "turn" now is none while explore's "prepare" is
+    still to come).
 
     >>> seqs, e = candidate_plans(torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 2, 1)
     >>> seqs[e].tolist()
@@ -89,6 +92,9 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     >>> seqs, e = candidate_plans(torch.tensor([1, 1, 0, 4, 4, 0, 0, 0]), 0, torch.tensor([0, 1]), 4, 3, 0)
     >>> seqs.tolist()  # advancing past the "turn left" due now would drop it: not a candidate
     [[1, 0, 4, 4], [1, 1, 0, 4], [1, 1, 1, 1]]
+    >>> seqs, e = candidate_plans(torch.tensor([0, 4, 4, 2, 2, 0, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 3, 0, True)
+    >>> [2, 2, 2, 2] in seqs.tolist(), [4, 4, 4, 4] in seqs.tolist()  # "turn" now would skip the "prepare"
+    (False, True)
     """
     H = horizon
     pad = future[-1:].expand(H + advance)  # past the known future the plan stays as it ends
@@ -101,7 +107,14 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     rows += [future[k:k + H] for k in range(1, advance + 1) if not skipped[k]]
     rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)]
     if bool(future[: advance + 1].any()):  # a prompt is due within reach: the fine choices now as well
-        rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist() if a != Instruction.NONE]
+        reach = future[: advance + 1].tolist()
+
+        def keeps_order(a: int) -> bool:  # says nothing explore would say before ``a`` (within reach) out of turn
+            before = reach[: reach.index(a)] if a in reach else reach
+            return not set(before) - {Instruction.NONE, last, a}
+
+        rows += [torch.full((H,), int(a), dtype=future.dtype) for a in allowed.tolist()
+                 if a != Instruction.NONE and (not in_order or keeps_order(a))]
     seqs, inverse = torch.unique(torch.stack(rows), dim=0, return_inverse=True)
     return seqs, int(inverse[0])
 
@@ -160,14 +173,17 @@ class RetimingPlanner(MPCPlannerBase):
         progress_weight: reward per metre of route progress at the horizon.
         departure: when a candidate may leave explore's plan (:class:`Departure`: margins, agreement, spread).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
+        in_order: the fine choices keep explore's order (:func:`candidate_plans`): no "turn" said now while
+            explore's "prepare" is still to come.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
-                 progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None) -> None:
+                 progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
+                 in_order: bool = False) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
-        self.horizon, self.advance, self.delay = int(horizon), int(advance), int(delay)
+        self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
@@ -219,7 +235,7 @@ class RetimingPlanner(MPCPlannerBase):
         last = int(last_onehot.argmax()) // self.playbacks if bool(last_onehot.any()) else 0
         mask = root["action_mask"][0].bool()
         allowed = mask.reshape(-1, self.playbacks).any(-1).nonzero().squeeze(-1)
-        seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay)
+        seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay, self.in_order)
         return self._actions(seqs)[0], explore
 
     def searches(self, root: TensorDictBase) -> bool:

@@ -49,8 +49,9 @@ PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing i
 MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 #: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain) where waiting a step (the
-#: cheapest candidate that plays explore's action now) costs more
-DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2,
+#: cheapest candidate that plays explore's action now) costs more; its fine choices keep explore's order (no "turn"
+#: said while explore's "prepare" is still to come)
+DRIVER_PLANNER: dict[str, Any] = {"horizon": 16, "advance": 8, "delay": 2, "in_order": True,
                                   "departure": {"margin": 10.0, "rel_margin": 0.02, "agree": 0.2, "max_spread": None,
                                                 "wait": True}}
 
