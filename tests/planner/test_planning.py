@@ -79,6 +79,32 @@ def test_candidate_plans_are_explore_re_timed_unique_and_explore_is_one_of_them(
     assert [1, 1, 0, 0] in held.tolist()  # the "prepare" already playing may give way to the "turn" early
 
 
+def test_in_order_fine_choices_never_say_an_instruction_before_one_explore_would_say_first():
+    g = torch.Generator().manual_seed(3)
+    allowed = torch.arange(7)
+    checked = 0
+    for _ in range(300):  # brute force over random plans: each kept fine choice skips nothing explore says before it
+        future = torch.randint(0, 7, (12,), generator=g) * (torch.rand(12, generator=g) < 0.4)
+        last = int(torch.randint(0, 7, (), generator=g))
+        loose, _ = candidate_plans(future, last, allowed, 4, 3, 1)
+        strict, e = candidate_plans(future, last, allowed, 4, 3, 1, in_order=True)
+        assert strict.tolist()[e] == future[:4].tolist()
+        assert {tuple(r) for r in strict.tolist()} <= {tuple(r) for r in loose.tolist()}  # a subset, never new plans
+        reach = future[:4].tolist()
+        for row in loose.tolist():
+            a = row[0]
+            if a == 0 or row != [a] * 4 or row in [future[k:k + 4].tolist() for k in range(4)]:
+                continue  # not a fine choice (or also a re-timing of explore's plan)
+            before = reach[: reach.index(a)] if a in reach else reach
+            assert (row in strict.tolist()) == (not set(before) - {0, last, a}), (future, last, row)
+            checked += 1
+    assert checked > 100
+    # explore's "prepare right" is still to come: "turn right" now is a loose candidate, not an in-order one
+    future = torch.tensor([0, 4, 4, 2, 2, 0, 0, 0])
+    assert [2] * 4 in candidate_plans(future, 0, allowed, 4, 3, 0)[0].tolist()
+    assert [2] * 4 not in candidate_plans(future, 0, allowed, 4, 3, 0, in_order=True)[0].tolist()
+    assert [2] * 4 in candidate_plans(future, 4, allowed, 4, 3, 0, in_order=True)[0].tolist()  # "prepare" said
+
 def _root(n_actions: int = 7) -> TensorDict:
     g = torch.Generator().manual_seed(0)
     hist = torch.randn(5, 14 + n_actions, generator=g)
