@@ -33,6 +33,7 @@ from pernav.learners.driver import (
     Estimate,
     Evidence,
     Response,
+    meta_loss,
     meta_train,
     read_response,
 )
@@ -180,9 +181,9 @@ class DriverState:
         reader.observe_drive(trajectory)
         return reader.belief.evidence
 
-    def meta_update(self, others: list[Evidence]) -> None:
+    def meta_update(self, others: list[Evidence], label: str | None = None) -> None:
         """FTML: ``P`` minimizes, over the offline drivers and every online round so far, the loss of the round's
-        other drives under ``U(P, tau)``."""
+        other drives under ``U(P, tau)``. The ``P`` this round used is kept with its pair (for :meth:`regret`)."""
         tau = self.data.pop("tau_evidence", None)
         if tau is None:
             return
@@ -190,7 +191,37 @@ class DriverState:
         for e in others:
             other = other + e
         self.data["online_pairs"].append((tau, other.state()))
+        self.data.setdefault("online_rounds", []).append({"label": label, "prior": self.data["prior"]})
         pairs = [(Evidence.from_state(a), Evidence.from_state(b))
                  for a, b in [*self.data["offline_pairs"], *self.data["online_pairs"]]]
         seed = len(self.data["online_pairs"])  # each round its own draws, the same in every run
         self.data["prior"] = meta_train(DriverPrior.from_dict(self.data["prior"]), pairs, steps=20, seed=seed).to_dict()
+
+    def regret(self, steps: int = 60) -> dict[str, Any]:
+        """The empirical regret of FTML's meta model, as ``adapt``'s (the paper's Eq. 3): per online round ``t``,
+        ``l_t(U(P_t, tau_t)) - l_t(U(P_h, tau_t))``, with ``l_t`` the round's other drives' :func:`nll` per item
+        under ``U`` on its ``tau`` (:func:`~pernav.learners.driver.meta_loss`) and ``P_h`` the best meta model in
+        hindsight over the online rounds: the cheapest over them all of FTML's own ``P_t``'s, its last ``P`` and a
+        ``steps``-step fit on every online pair from the ``P`` of the first round. ``P_h`` only approximates the
+        minimizer, so the regret is at most what it would be against the exact one. Rounds without other drives'
+        evidence to score are left out.
+
+        >>> from pernav.learners.belief import AnswerDetector
+        >>> DriverState({"detector": AnswerDetector().state_dict(), "online_pairs": []}).regret()["loss_regret"]
+        []
+        """
+        rounds = self.data.get("online_rounds", [])
+        pairs = [(Evidence.from_state(a), Evidence.from_state(b)) for a, b in self.data["online_pairs"][-len(rounds):]
+                 ] if rounds else []
+        scored = [(r, pair) for r, pair in zip(rounds, pairs, strict=True) if len(pair[1]) > 0]
+        if not scored:
+            return {"labels": [], "loss_regret": [], "average_loss_regret": [], "hindsight_prior": None}
+        online = [pair for _, pair in scored]
+        priors = [DriverPrior.from_dict(r["prior"]) for r, _ in scored]
+        candidates = [*priors, DriverPrior.from_dict(self.data["prior"]), meta_train(priors[0], online, steps=steps)]
+        best = min(candidates, key=lambda prior: meta_loss(prior, online))
+        losses = [meta_loss(prior, [pair]) - meta_loss(best, [pair]) for prior, pair in zip(priors, online, strict=True)]
+        running = [sum(losses[: i + 1]) / (i + 1) for i in range(len(losses))]
+        return {"labels": [r["label"] for r, _ in scored], "loss_regret": losses, "average_loss_regret": running,
+                "hindsight_prior": best.to_dict()}
+

@@ -351,7 +351,7 @@ def _driver_rollouts(run: _Town, entry: Entry, tracker: Any) -> None:
                 else _collector(cfg, seed)
             others.append(state.evidence_of(episode(cfg, run.town, entry, route, seed, policy), tracker))
     with _Timer(run.profile, "adapt_driver_meta_s"):
-        state.meta_update(others)
+        state.meta_update(others, entry.label)
 
 
 def _best_shift(run: _Town, entry: Entry) -> int:
@@ -383,11 +383,12 @@ def _town_result(run: _Town) -> dict[str, Any]:
     if state.driver is not None:
         diagnostics["adapt_driver"] = {"estimates": state.driver.get("rounds", {}),
                                        "prior0": state.driver["prior0"], "prior": state.driver["prior"]}
+    driver_regret = DriverState(state.driver).regret() if state.driver is not None else None
     if state.shifts:
         diagnostics["best_shift"] = state.shifts
     return {"town": run.town, "results": state.results, "online_losses": state.online_losses,
             "unadapted_losses": state.unadapted_losses, "fixed_step_losses": state.fixed_step_losses,
-            "diagnostics": diagnostics,
+            "diagnostics": diagnostics, "driver_regret": driver_regret,
             "hindsight_losses": (state.hindsight or {}).get("losses", {}), "wall_time": state.wall_time,
             "profile": {k: round(v, 2) for k, v in state.profile.items()}}
 

@@ -182,6 +182,8 @@ def assemble(cfg: StudyConfig, towns: list[dict[str, Any]]) -> dict[str, Any]:
                                **({"adapted_fixed_step": t["fixed_step_losses"][k]}
                                   if k in t.get("fixed_step_losses", {}) else {})} for k in online},
         }
+        if t.get("driver_regret"):  # adapt_driver's FTML against its best meta model in hindsight (model loss)
+            regret[t["town"]]["adapt_driver"] = t["driver_regret"]
     diagnostics = {t["town"]: t["diagnostics"] for t in towns}
     return {"config": _fingerprint(cfg), "iterations": iterations, "summary": summarize(iterations), "regret": regret,
             "comparison": compare([iterations]), "diagnostics": diagnostics}

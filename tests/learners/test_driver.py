@@ -415,3 +415,33 @@ def test_a_car_that_entered_the_ring_from_a_stop_drives_it_at_its_turn_speed_not
     pos, _ = env.imagine(root, plan[None])
     assert bool((_off_ring(pos[:, 0]) < 1.0).all())
     assert float((pos[0, 0, 1] - pos[0, 0, 0]).norm()) > 2.5  # it sped up: more than 1 m/s after the first second
+
+
+def test_ftml_regret_is_zero_where_each_round_used_the_hindsight_model_and_positive_where_it_used_a_worse_one():
+    from pernav.learners.belief import AnswerDetector
+    from pernav.learners.driver import meta_loss
+
+    delays = torch.arange(0.3, 9.0, 0.1, dtype=torch.float64)
+
+    def drive(reaction: float, n: int = 4) -> Evidence:
+        probs = torch.zeros(len(delays), dtype=torch.float64)
+        probs[int(torch.argmin((delays - reaction).abs()))] = 1.0
+        return Evidence([(delays, probs, 0.0)] * n)
+
+    slow = [(drive(2.8), drive(3.0)), (drive(3.2), drive(2.9)), (drive(3.0), drive(3.1))]
+    quick = DriverPrior.population((-0.7, 0.2), (2.0, 0.5))  # a meta model far from these drivers
+
+    def state(priors: list[DriverPrior]) -> DriverState:
+        return DriverState({"detector": AnswerDetector().state_dict(), "prior": priors[-1].to_dict(),
+                            "online_pairs": [(a.state(), b.state()) for a, b in slow],
+                            "online_rounds": [{"label": f"Online {i}", "prior": p.to_dict()}
+                                              for i, p in enumerate(priors)]})
+
+    worse = state([quick] * 3).regret()
+    assert worse["labels"] == ["Online 0", "Online 1", "Online 2"]
+    assert all(r > 0 for r in worse["loss_regret"])  # the hindsight model knows these drivers are slow
+    best = DriverPrior.from_dict(worse["hindsight_prior"])
+    assert best.mean[0] > quick.mean[0] and meta_loss(best, slow) < meta_loss(quick, slow)
+    same = state([best] * 3).regret()  # every round used one meta model: in all together it cannot beat hindsight's
+    assert 0 <= sum(same["loss_regret"]) < 0.1 * sum(worse["loss_regret"]), (same, worse)
+    assert worse["average_loss_regret"][-1] == pytest.approx(sum(worse["loss_regret"]) / 3, rel=1e-9)

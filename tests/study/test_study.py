@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -50,6 +51,10 @@ def test_smoke_results_match_the_schema(two_workers):
     assert (out / "figures" / "Town1_cost.png").stat().st_size > 1000
     assert (out / "figures" / "Town1_regret.png").exists()
     assert list((out / "logs").rglob("*.csv")), "scalar logs through TorchRL's CSVLogger"
+    for town, rounds in (("Town1", ["Online 0", "Online 8"]), ("Town2", ["Online 0"])):  # adapt_driver's FTML regret
+        reg = on_disk["regret"][town]["adapt_driver"]
+        assert reg["labels"] and set(reg["labels"]) <= set(rounds) and len(reg["loss_regret"]) == len(reg["labels"])
+        assert all(math.isfinite(x) for x in reg["loss_regret"]) and reg["hindsight_prior"]["mean"]
 
 
 @pytest.mark.slow
