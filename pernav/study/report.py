@@ -12,7 +12,7 @@ from pernav.study.config import METHODS
 __all__ = ["collision_table", "running_mean", "wall_time", "write_report"]
 
 COLORS = {"explore": "#7f7f7f", "sysid": "#1f77b4", "adapt": "#d62728", "adapt_speed": "#ff7f0e",
-          "hindsight": "#2ca02c", "oracle": "#9467bd"}
+          "hindsight": "#2ca02c", "oracle": "#9467bd", "adapt_driver": "#17becf"}
 
 
 def _online(results: dict[str, Any], town: str) -> list[dict[str, Any]]:

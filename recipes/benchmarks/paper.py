@@ -38,8 +38,8 @@ from pernav.study.config import METHODS
 from pernav.study.report import COLORS, running_mean, wall_time
 from pernav.study.stats import paired_difference
 
-__all__ = ["PAPER_ROUNDS", "PAPER_TABLE1", "Claim", "PaperError", "claims", "compact", "expand", "main", "merge",
-           "paper_markdown", "plot_fig3", "plot_regret"]
+__all__ = ["PAPER_ROUNDS", "PAPER_TABLE1", "Claim", "PaperError", "add_into", "add_methods", "claims", "compact", "expand",
+           "main", "merge", "paper_markdown", "plot_fig3", "plot_regret"]
 
 # Collisions per route set, mean (std) over the online rounds, per town and method. Transcribed from the paper's
 # LaTeX source (Song et al., L4DC 2022): Town1-3 from Table "safety" (\label{table:safety}, Sec.
@@ -56,7 +56,10 @@ PAPER_ROUNDS = {"Town1": 15, "Town2": 15, "Town3": 15, "Town4": 9, "Town5": 9}
 TOWNS = tuple(PAPER_TABLE1)
 PAPER_METHODS = ("explore", "sysid", "adapt", "adapt_speed")
 #: the collision reductions the paper claims ("over 50 % and 60 %") and how far below them still counts as "≈"
-CLAIMED_REDUCTION = {"adapt": 0.50, "adapt_speed": 0.60}
+CLAIMED_REDUCTION = {"adapt": 0.50, "adapt_speed": 0.60, "adapt_driver": 0.50}
+#: adapt_driver (docs/adapt_driver.md) is judged by the paper's claims for its learner, adapt
+PAPER_LEARNER = {"adapt_driver": "adapt"}
+NAMES = {"adapt": "Adapt", "adapt_speed": "Adapt-Speed", "adapt_driver": "Adapt-Driver"}
 TOLERANCE = 0.10
 #: "Adapt-Speed like Adapt early": their mean per-round costs differ by at most this share of adapt's
 SIMILAR = 0.10
@@ -231,14 +234,14 @@ def _per_town(values: dict[str, float], fmt: str) -> str:
 
 def _reduction_claim(towns: dict[str, dict[str, Any]], m: str) -> Claim:
     claimed = CLAIMED_REDUCTION[m]
-    text = f"{'Adapt' if m == 'adapt' else 'Adapt-Speed'} ≈ −{100 * claimed:.0f} % collisions vs explore"
+    text = f"{NAMES[m]} ≈ −{100 * claimed:.0f} % collisions vs explore"
     tables = {n: town_table(t) for n, t in towns.items()}
     tables = {n: tab for n, tab in tables.items() if "explore" in tab and m in tab}
     if not tables:
         return Claim(text, None, f"no finished town ran {m} and explore")
     ex = sum(tab["explore"]["collisions_mean"] for tab in tables.values())
     me = sum(tab[m]["collisions_mean"] for tab in tables.values())
-    paper = 1 - sum(PAPER_TABLE1[n][m][0] for n in tables if n in PAPER_TABLE1) / max(
+    paper = 1 - sum(PAPER_TABLE1[n][PAPER_LEARNER.get(m, m)][0] for n in tables if n in PAPER_TABLE1) / max(
         sum(PAPER_TABLE1[n]["explore"][0] for n in tables if n in PAPER_TABLE1), 1e-9)
     rule = f"holds at a reduction of {100 * (claimed - TOLERANCE):.0f} % or more"
     if ex == 0:
@@ -253,23 +256,23 @@ def _reduction_claim(towns: dict[str, dict[str, Any]], m: str) -> Claim:
                  f"the paper on these towns: −{100 * paper:.0f} %; {rule}")
 
 
-def _below_claim(towns: dict[str, dict[str, Any]]) -> Claim:
-    text = "Adapt below explore and SysID in every online round after the first"
+def _below_claim(towns: dict[str, dict[str, Any]], m: str = "adapt") -> Claim:
+    text = f"{NAMES[m]} below explore and SysID in every online round after the first"
     run_wins = round_wins = total = 0
     each = {}
     for n, t in towns.items():
-        rounds = [r for r in _online(t) if all(m in r["methods"] for m in ("explore", "sysid", "adapt"))]
+        rounds = [r for r in _online(t) if all(k in r["methods"] for k in ("explore", "sysid", m))]
         if len(rounds) < 2:
             continue
-        avg = {m: running_mean([_cost(r, m) for r in rounds]) for m in ("explore", "sysid", "adapt")}
-        rw = sum(avg["adapt"][i] < min(avg["explore"][i], avg["sysid"][i]) for i in range(1, len(rounds)))
-        pw = sum(_cost(r, "adapt") < min(_cost(r, "explore"), _cost(r, "sysid")) for r in rounds[1:])
+        avg = {k: running_mean([_cost(r, k) for r in rounds]) for k in ("explore", "sysid", m)}
+        rw = sum(avg[m][i] < min(avg["explore"][i], avg["sysid"][i]) for i in range(1, len(rounds)))
+        pw = sum(_cost(r, m) < min(_cost(r, "explore"), _cost(r, "sysid")) for r in rounds[1:])
         run_wins, round_wins, total = run_wins + rw, round_wins + pw, total + len(rounds) - 1
         each[n] = f"{rw}/{len(rounds) - 1}"
     if not total:
-        return Claim(text, None, "no finished town has two online rounds with explore, sysid and adapt")
+        return Claim(text, None, f"no finished town has two online rounds with explore, sysid and {m}")
     return Claim(text, run_wins == total,
-                 f"adapt's average cost up to the round (Fig. 3's metric) is below both in {run_wins} of {total} "
+                 f"{m}'s average cost up to the round (Fig. 3's metric) is below both in {run_wins} of {total} "
                  f"rounds after the first ({_per_town(each, 's')}); round by round: {round_wins} of {total}")
 
 
@@ -339,11 +342,29 @@ def _regret_claim(towns: dict[str, dict[str, Any]]) -> Claim:
                  "second half's is smaller in size")
 
 
+def _driver_regret_claim(towns: dict[str, dict[str, Any]]) -> Claim:
+    text = "the regret (Adapt-Driver's FTML vs its best meta model in hindsight) shrinks over the rounds"
+    halves = {}
+    for n, t in towns.items():
+        values = ((t.get("regret") or {}).get("adapt_driver") or {}).get("loss_regret") or []
+        half = len(values) // 2
+        if half:
+            halves[n] = (statistics.fmean(values[:half]), statistics.fmean(values[half:]))
+    if not halves:
+        return Claim(text, None, "no finished town has two online rounds of adapt_driver's regret")
+    e, lt = (statistics.fmean(v[i] for v in halves.values()) for i in (0, 1))
+    return Claim(text, abs(lt) < abs(e),
+                 f"the model-loss regret per item of evidence, first half {e:.3g}, second half {lt:.3g} "
+                 f"({', '.join(f'{n} {v[0]:.3g} → {v[1]:.3g}' for n, v in halves.items())}; its tracking-cost regret "
+                 "needs a hindsight evaluation of every round, not run); holds when the second half's is smaller")
+
+
 def claims(merged: dict[str, Any]) -> list[Claim]:
-    """The paper's claims, each judged on the finished towns of ``merged``."""
+    """The paper's claims, each judged on the finished towns of ``merged``; adapt_driver's by the claims for adapt."""
     towns = merged["towns"]
     return [_reduction_claim(towns, "adapt"), _reduction_claim(towns, "adapt_speed"), _below_claim(towns),
-            _gap_claim(towns), _speed_claim(towns), _regret_claim(towns)]
+            _gap_claim(towns), _speed_claim(towns), _regret_claim(towns),
+            _reduction_claim(towns, "adapt_driver"), _below_claim(towns, "adapt_driver"), _driver_regret_claim(towns)]
 
 
 # ----------------------------------------------------------------------------------------------------- markdown
@@ -400,20 +421,23 @@ def paper_markdown(merged: dict[str, Any], figures: str = "paper") -> str:
         lines += _town_section(name, towns.get(name))
     lines += ["## The paper's claims, judged here", "",
               f"Judged on {', '.join(done) if done else 'no town yet'}"
-              f"{' (' + ', '.join(missing) + ' not yet run)' if done and missing else ''}.", ""]
+              f"{' (' + ', '.join(missing) + ' not yet run)' if done and missing else ''}. Adapt-Driver (pernav's "
+              "`adapt_driver`, docs/adapt_driver.md) is judged by the claims the paper makes for Adapt.", ""]
     lines += [c.line() for c in claims(merged)]
     lines.append("")
     if done:
         lines += ["## Figures", "", "The paper's Fig. 3: the average episodic cost up to each online round, per town "
-                  "(explore, sysid, adapt, adapt_speed).", "", f"![Fig. 3]({figures}/fig3.png)", "",
-                  "The regret of adapt against the best meta model in hindsight, per round and averaged up to it.", "",
+                  "(explore, sysid, adapt, adapt_speed, and adapt_driver where it ran).", "",
+                  f"![Fig. 3]({figures}/fig3.png)", "",
+                  "The regret of adapt (and of adapt_driver's FTML, where it ran) against the best meta model in "
+                  "hindsight, per round and averaged up to it.", "",
                   f"![regret]({figures}/regret.png)"]
     return "\n".join(lines).strip("\n")
 
 
 def plot_fig3(merged: dict[str, Any], path: str | Path) -> None:
     """The paper's Fig. 3: per town, the running-average episodic tracking cost per online round, one bar per
-    method (the paper's four)."""
+    method (the paper's four, and adapt_driver where it ran in every round)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -423,7 +447,7 @@ def plot_fig3(merged: dict[str, Any], path: str | Path) -> None:
     fig, axes = plt.subplots(len(towns), 1, figsize=(9, 2.8 * len(towns)), squeeze=False)
     for ax, (name, t) in zip(axes[:, 0], towns.items(), strict=True):
         rounds = _online(t)
-        methods = [m for m in PAPER_METHODS if all(m in r["methods"] for r in rounds)]
+        methods = [m for m in (*PAPER_METHODS, "adapt_driver") if all(m in r["methods"] for r in rounds)]
         width = 0.8 / max(len(methods), 1)
         for j, m in enumerate(methods):
             ax.bar([i + (j - (len(methods) - 1) / 2) * width for i in range(len(rounds))],
@@ -432,30 +456,34 @@ def plot_fig3(merged: dict[str, Any], path: str | Path) -> None:
         ax.set_title(name, fontsize=9)
         ax.set_ylabel("avg. episodic cost")
     axes[-1, 0].set_xlabel("online round")
-    axes[0, 0].legend(fontsize=7, ncol=4, loc="lower right")
+    axes[0, 0].legend(fontsize=7, ncol=5, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
 
 
 def plot_regret(merged: dict[str, Any], path: str | Path) -> None:
-    """Per town, adapt − hindsight per online round (dots) and averaged up to it (line): tracking cost and model loss."""
+    """Per town, adapt − hindsight per online round (dots) and averaged up to it (line): tracking cost and model loss;
+    and adapt_driver's FTML model-loss regret where a town has it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # lazy: after the headless backend is chosen
     from matplotlib.ticker import MaxNLocator
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.4))
+    panels = [("cost_regret", "tracking-cost regret (adapt − hindsight)"),
+              ("loss_regret", "model-loss regret (adapt − hindsight)")]
+    if any((t.get("regret") or {}).get("adapt_driver") for t in merged["towns"].values()):
+        panels.append(("adapt_driver", "adapt_driver: model-loss regret (FTML − hindsight)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 3.4))
     for k, (name, t) in enumerate(merged["towns"].items()):
         reg = t.get("regret") or {}
-        for ax, key in zip(axes, ("cost_regret", "loss_regret"), strict=True):
-            values = reg.get(key) or []
+        for ax, (key, _) in zip(axes, panels, strict=True):
+            values = (reg.get(key) or {}).get("loss_regret") or [] if key == "adapt_driver" else reg.get(key) or []
             x = range(1, len(values) + 1)
             ax.plot(x, values, ".", color=f"C{k}", alpha=0.5)
             ax.plot(x, running_mean(values), "-", color=f"C{k}", label=name)
-    for ax, title in zip(axes, ("tracking-cost regret (adapt − hindsight)", "model-loss regret (adapt − hindsight)"),
-                         strict=True):
+    for ax, (_, title) in zip(axes, panels, strict=True):
         ax.axhline(0, color="k", lw=0.5)
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("online round")
@@ -506,6 +534,66 @@ def compact_into(run_dirs: Sequence[str | Path], into: str | Path) -> list[Path]
     return written
 
 
+def add_methods(town: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    """``town`` (a compact file) with the methods of ``extra`` (a compact study of the same town, preset and seed) that
+    it lacks, round by round: their figures, their regret and diagnostics. The two must be the same episodes: every
+    round of ``town`` in ``extra`` with explore's episodes identical in each, else :class:`PaperError` names the first
+    that differs (a method's Table 1 row is paired with explore's there, and the other methods' rows too).
+
+    >>> ep = {"route": [0], "tracking_cost": [5.0]}
+    >>> t = {"town": "T", "config": {"seed": 0, "preset": "paper"}, "rounds": [{"label": "Online 0", "methods": {
+    ...      "explore": {"episodes": ep}}}], "regret": {}, "diagnostics": {}}
+    >>> more = {**t, "rounds": [{"label": "Online 0", "methods": {"explore": {"episodes": ep}, "x": {"episodes": ep}}}]}
+    >>> sorted(add_methods(t, more)["rounds"][0]["methods"])
+    ['explore', 'x']
+    """
+    for key in ("town", "seed", "preset"):
+        a = town.get(key, town["config"].get(key)) if key == "town" else town["config"].get(key)
+        b = extra.get(key, extra["config"].get(key)) if key == "town" else extra["config"].get(key)
+        if a != b:
+            raise PaperError(f"cannot add methods from a study with {key} {b!r} to a town file with {key} {a!r}")
+    theirs = {r["label"]: r for r in extra["rounds"]}
+    new = sorted({m for r in extra["rounds"] for m in r["methods"]} - {m for r in town["rounds"] for m in r["methods"]})
+    if not new:
+        raise PaperError(f"{town['town']}: the study adds no method the town file lacks")
+    rounds = []
+    for r in town["rounds"]:
+        other = theirs.get(r["label"])
+        if other is None:
+            raise PaperError(f"{town['town']}: the study has no round {r['label']!r}; it is not the same schedule")
+        mine, yours = (x["methods"].get("explore", {}).get("episodes", {}) for x in (r, other))
+        if not mine or any(mine[k] != yours.get(k) for k in mine.keys() & set(EPISODE_KEYS)):
+            raise PaperError(f"{town['town']} {r['label']}: explore's episodes differ between the town file and the "
+                             "study, so its methods would not be paired with the file's; not added")
+        rounds.append({**r, "methods": {**r["methods"], **{m: f for m, f in other["methods"].items() if m in new}}})
+    regret = dict(town.get("regret") or {})
+    regret.update({m: v for m, v in (extra.get("regret") or {}).items() if m in new})
+    diagnostics = dict(town.get("diagnostics") or {})
+    diagnostics.update({m: v for m, v in (extra.get("diagnostics") or {}).items() if m in new})
+    added = {**town.get("added", {}), **{m: {"provenance": extra.get("provenance"), "wall_time": extra.get("wall_time"),
+                                             "methods_run": extra["config"].get("methods")} for m in new}}
+    return {**town, "rounds": rounds, "regret": regret, "diagnostics": diagnostics, "added": added}
+
+
+def add_into(run_dirs: Sequence[str | Path], into: str | Path) -> list[Path]:
+    """Add the methods of each finished study folder to ``into/<Town>.json`` (:func:`add_methods`); returns the files
+    rewritten. Nothing is written unless every town can take them."""
+    into = Path(into)
+    updated = []
+    for d in map(Path, run_dirs):
+        results = _read_json(d / "results.json") if (d / "results.json").is_file() else None
+        if not isinstance(results, dict) or not {"config", "iterations"} <= set(results):
+            raise PaperError(f"{d} has no finished study's results.json")
+        for name in sorted({t for it in results["iterations"] for t in it.get("towns", {})}):
+            path = into / f"{name}.json"
+            if not path.is_file():
+                raise PaperError(f"{path} does not exist: compact the town's own study first (--compact-into)")
+            updated.append((path, add_methods(_read_json(path), compact(results, name))))
+    for path, town in updated:
+        path.write_text(json.dumps(town, separators=(",", ":")) + "\n")
+    return [p for p, _ in updated]
+
+
 def build(results: str | Path, page: str | Path, figures: str | Path) -> dict[str, Any]:
     """Rebuild ``page``'s generated section (between its markers) and the figures from ``results/*.json``."""
     page, figures = Path(page), Path(figures)
@@ -538,19 +626,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m recipes.benchmarks.paper", description=__doc__.split("\n")[0])
     p.add_argument("run_dirs", nargs="*", metavar="RUN_DIR", help="finished study folders (each with results.json)")
     p.add_argument("--compact-into", metavar="DIR", help="write DIR/<Town>.json for every town of the RUN_DIRs")
+    p.add_argument("--add-into", metavar="DIR", help="add the RUN_DIRs' methods to DIR/<Town>.json (same seed, same "
+                   "explore episodes), e.g. adapt_driver's column in Table 1")
     p.add_argument("--build", action="store_true", help="rebuild the page's generated section and figures")
     p.add_argument("--results", default="docs/paper/results", help="the compact towns (default: %(default)s)")
     p.add_argument("--page", default="docs/paper.md", help="the page to rebuild (default: %(default)s)")
     p.add_argument("--figures", default="docs/paper", help="where fig3.png and regret.png go (default: %(default)s)")
     args = p.parse_args(argv)
     try:
-        if args.run_dirs and not args.compact_into:
-            raise PaperError("study folders given without --compact-into DIR")
-        if args.compact_into and not args.run_dirs:
-            raise PaperError("--compact-into needs at least one study folder")
-        if not (args.compact_into or args.build):
-            raise PaperError("nothing to do: give RUN_DIR... --compact-into DIR, or --build")
-        for path in compact_into(args.run_dirs, args.compact_into) if args.compact_into else []:
+        if args.compact_into and args.add_into:
+            raise PaperError("give --compact-into or --add-into, not both")
+        into = args.compact_into or args.add_into
+        if args.run_dirs and not into:
+            raise PaperError("study folders given without --compact-into DIR or --add-into DIR")
+        if into and not args.run_dirs:
+            raise PaperError(f"{'--compact-into' if args.compact_into else '--add-into'} needs at least one study folder")
+        if not (into or args.build):
+            raise PaperError("nothing to do: give RUN_DIR... --compact-into DIR (or --add-into DIR), or --build")
+        written = (compact_into if args.compact_into else add_into)(args.run_dirs, into) if into else []
+        for path in written:
             print(f"{path}: {path.stat().st_size / 1000:.0f} kB")
         if args.build:
             merged = build(args.results, args.page, args.figures)

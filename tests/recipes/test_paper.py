@@ -262,3 +262,36 @@ def test_the_committed_page_is_what_build_makes_of_the_committed_results(tmp_pat
                  "--figures", str(tmp_path / "paper")]) == 0
     assert generated_section(ROOT / "docs" / "paper.md") == generated_section(page), (
         "docs/paper.md is stale: run `make paper` and commit it")
+
+
+def test_add_into_gives_a_method_from_another_study_of_the_same_episodes_its_row_and_refuses_other_episodes(tmp_path,
+                                                                                                           capsys):
+    def run_dir(name: str, results: dict) -> str:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "results.json").write_text(json.dumps(results))
+        return str(tmp_path / name)
+
+    into = tmp_path / "results"
+    assert main([run_dir("table", synthetic()), "--compact-into", str(into)]) == 0
+    more = synthetic(methods=("explore", "adapt_driver"), cost=lambda m, k, r: {"explore": 100.0}.get(m, 90.0) + r)
+    more["regret"]["Town2"]["adapt_driver"] = {"labels": ["Online 0"], "loss_regret": [0.5]}
+    file = into / "Town2.json"
+    before = file.read_text()
+    # another seed's or another explore's episodes: refused, the file untouched
+    other_seed = synthetic(seed=1, methods=("explore", "adapt_driver"))
+    other_explore = synthetic(methods=("explore", "adapt_driver"), cost=lambda m, k, r: 101.0 + r)
+    for name, results, words in (("seed", other_seed, "seed 1"), ("explore", other_explore, "explore's episodes differ"),
+                                 ("same", synthetic(), "adds no method")):
+        capsys.readouterr()
+        assert main([run_dir(name, results), "--add-into", str(into)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: ") and words in err and err.count("\n") == 1, err
+        assert file.read_text() == before
+    assert main([run_dir("driver", more), "--add-into", str(into)]) == 0
+    town = json.loads(file.read_text())
+    table = town_table(town)
+    assert set(table) == {*METHODS, "adapt_driver"}
+    assert table["adapt_driver"]["explore_minus_method"]["mean"] == pytest.approx(10.0)  # paired with the file's explore
+    assert table["adapt"] == town_table(json.loads(before))["adapt"]  # the other rows as they were
+    assert town["regret"]["adapt_driver"]["loss_regret"] == [0.5] and "adapt_driver" in town["added"]
+    assert "| adapt_driver |" in paper_markdown(merge([town]))
