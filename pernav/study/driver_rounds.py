@@ -39,6 +39,7 @@ from pernav.learners.driver import (
 )
 from pernav.learners.outcomes import SwerveDetector
 from pernav.model.driver import DriverParams
+from pernav.study.report import running_mean
 from pernav.world.constants import PREPARES, TURNS
 
 __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_driver"]
@@ -221,7 +222,7 @@ class DriverState:
         candidates = [*priors, DriverPrior.from_dict(self.data["prior"]), meta_train(priors[0], online, steps=steps)]
         best = min(candidates, key=lambda prior: meta_loss(prior, online))
         losses = [meta_loss(prior, [pair]) - meta_loss(best, [pair]) for prior, pair in zip(priors, online, strict=True)]
-        running = [sum(losses[: i + 1]) / (i + 1) for i in range(len(losses))]
-        return {"labels": [r["label"] for r, _ in scored], "loss_regret": losses, "average_loss_regret": running,
+        return {"labels": [r["label"] for r, _ in scored], "loss_regret": losses,
+                "average_loss_regret": running_mean(losses),
                 "hindsight_prior": best.to_dict()}
 
