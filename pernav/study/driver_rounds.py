@@ -17,6 +17,7 @@ Methods:
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -198,7 +199,7 @@ class DriverState:
         seed = len(self.data["online_pairs"])  # each round its own draws, the same in every run
         self.data["prior"] = meta_train(DriverPrior.from_dict(self.data["prior"]), pairs, steps=20, seed=seed).to_dict()
 
-    def regret(self, steps: int = 60) -> dict[str, Any]:
+    def regret(self, steps: int = 30) -> dict[str, Any]:
         """The empirical regret of FTML's meta model, as ``adapt``'s (the paper's Eq. 3): per online round ``t``,
         ``l_t(U(P_t, tau_t)) - l_t(U(P_h, tau_t))``, with ``l_t`` the round's other drives' :func:`nll` per item
         under ``U`` on its ``tau`` (:func:`~pernav.learners.driver.meta_loss`) and ``P_h`` the best meta model in
@@ -220,7 +221,8 @@ class DriverState:
         online = [pair for _, pair in scored]
         priors = [DriverPrior.from_dict(r["prior"]) for r, _ in scored]
         candidates = [*priors, DriverPrior.from_dict(self.data["prior"]), meta_train(priors[0], online, steps=steps)]
-        best = min(candidates, key=lambda prior: meta_loss(prior, online))
+        unique = list({json.dumps(p.to_dict(), sort_keys=True): p for p in candidates}.values())  # FTML often keeps P
+        best = min(unique, key=lambda prior: meta_loss(prior, online))
         losses = [meta_loss(prior, [pair]) - meta_loss(best, [pair]) for prior, pair in zip(priors, online, strict=True)]
         return {"labels": [r["label"] for r, _ in scored], "loss_regret": losses,
                 "average_loss_regret": running_mean(losses),
