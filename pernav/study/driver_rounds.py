@@ -221,10 +221,16 @@ class DriverState:
         online = [pair for _, pair in scored]
         priors = [DriverPrior.from_dict(r["prior"]) for r, _ in scored]
         candidates = [*priors, DriverPrior.from_dict(self.data["prior"]), meta_train(priors[0], online, steps=steps)]
-        unique = list({json.dumps(p.to_dict(), sort_keys=True): p for p in candidates}.values())  # FTML often keeps P
-        best = min(unique, key=lambda prior: meta_loss(prior, online))
-        losses = [meta_loss(prior, [pair]) - meta_loss(best, [pair]) for prior, pair in zip(priors, online, strict=True)]
+        key = [json.dumps(p.to_dict(), sort_keys=True) for p in candidates]  # FTML often keeps P: each scored once
+        each = {k: [meta_loss(p, [pair]) for pair in online] for k, p in zip(key, candidates, strict=True)}
+        items = [len(other) for _, other in online]
+
+        def total(k: str) -> float:  # meta_loss over every online pair: per item of evidence
+            return sum(loss * n for loss, n in zip(each[k], items, strict=True)) / sum(items)
+
+        best = min(dict.fromkeys(key), key=total)
+        losses = [each[k][t] - each[best][t] for t, k in enumerate(key[: len(priors)])]
         return {"labels": [r["label"] for r, _ in scored], "loss_regret": losses,
                 "average_loss_regret": running_mean(losses),
-                "hindsight_prior": best.to_dict()}
+                "hindsight_prior": candidates[key.index(best)].to_dict()}
 

@@ -547,10 +547,11 @@ def add_methods(town: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     >>> sorted(add_methods(t, more)["rounds"][0]["methods"])
     ['explore', 'x']
     """
-    for key in ("town", "seed", "preset"):
-        a = town.get(key, town["config"].get(key)) if key == "town" else town["config"].get(key)
-        b = extra.get(key, extra["config"].get(key)) if key == "town" else extra["config"].get(key)
-        if a != b:
+    def which(t: dict[str, Any]) -> dict[str, Any]:
+        return {"town": t["town"], "seed": t["config"].get("seed"), "preset": t["config"].get("preset")}
+
+    for key, a in which(town).items():
+        if a != (b := which(extra)[key]):
             raise PaperError(f"cannot add methods from a study with {key} {b!r} to a town file with {key} {a!r}")
     theirs = {r["label"]: r for r in extra["rounds"]}
     new = sorted({m for r in extra["rounds"] for m in r["methods"]} - {m for r in town["rounds"] for m in r["methods"]})
