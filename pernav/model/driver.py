@@ -76,7 +76,7 @@ from pernav.world.constants import (
     Instruction,
 )
 
-__all__ = ["DriverImaginedEnv", "DriverParams", "imagine_drive"]
+__all__ = ["DriverImaginedEnv", "DriverParams", "dropped_prompts", "imagine_drive"]
 
 HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in ``route_ahead``
 SUBSTEPS = 2  # the imagination's steps per one-second decision (0.5 s: a decision within its time budget)
@@ -351,6 +351,35 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     return pos.float(), goal.float()
 
 
+def dropped_prompts(root: TensorDictBase, sequences: torch.Tensor) -> torch.Tensor:
+    """``[N]``: the "turn" and "prepare" prompts each sequence ``[N, H]`` plays (not held) before the car enters a
+    junction the route goes straight through: the driver drops what it heard there (it was meant for that junction),
+    so they are for no junction. The entry is imagined at the car's speed now.
+
+    >>> import torch
+    >>> from tensordict import TensorDict
+    >>> route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # straight on through a junction 20 m
+    >>> route[60:, 1] = (torch.arange(36.0) + 1) * 3; route[60:, 0] = route[59, 0]  # ahead, then a right turn
+    >>> history = torch.zeros(5, 21); history[:, 3] = 10.0
+    >>> root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(20.0)}, [])
+    >>> dropped_prompts(root, torch.tensor([[4, 4, 4, 0], [0, 0, 4, 4]])).tolist()  # said at 0 s: dropped; at 2 s: not
+    [1, 0]
+    """
+    route = root["route_ahead"].double()
+    s_first, _, through, _, _ = _junction_ahead(root, route)
+    N, H = sequences.shape
+    if not through:
+        return torch.zeros(N, dtype=torch.long)
+    state = root["history"][-1].double()
+    v0 = float(torch.hypot(state[VX], state[VY]))
+    past = root["history"][-2, STATE_DIM:STATE_DIM + N_INSTRUCTIONS] if root["history"].shape[0] > 1 else None
+    last = int(past.argmax()) if past is not None and bool(past.any()) else Instruction.NONE
+    previous = torch.cat([torch.full((N, 1), last, dtype=torch.long), sequences[:, :-1].long()], 1)
+    played = (sequences != previous) & torch.isin(sequences, torch.tensor((*TURNS, *PREPARES)))
+    before = torch.arange(H, dtype=torch.float64) < s_first / max(v0, 0.1)
+    return (played & before).sum(-1)
+
+
 class _Decision:
     """One junction's branch, as the driver chooses it: at its commit ``D`` s (at its speed then) before the junction
     ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
@@ -465,3 +494,9 @@ class DriverImaginedEnv(EnvBase):
                 ) -> tuple[torch.Tensor, torch.Tensor]:
         """``([M, N, H, 2], [M, N, H, 2])`` positions and goals (:func:`imagine_drive`)."""
         return imagine_drive(root, sequences, self.rows(params))
+
+    @torch.no_grad()
+    def dropped(self, root: TensorDictBase, sequences: torch.Tensor) -> torch.Tensor:
+        """``[N]``: how many "turn" and "prepare" prompts each sequence says where this model's driver drops them
+        (:func:`dropped_prompts`): a prompt said where it is dropped is a prompt not said."""
+        return dropped_prompts(root, sequences)

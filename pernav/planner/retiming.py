@@ -174,7 +174,9 @@ class RetimingPlanner(MPCPlannerBase):
         departure: when a candidate may leave explore's plan (:class:`Departure`: margins, agreement, spread).
         playbacks: 3 for the 21-action space (instruction * 3 + playback), else 1.
         in_order: the fine choices keep explore's order (:func:`candidate_plans`): no "turn" said now while
-            explore's "prepare" is still to come.
+            explore's "prepare" is still to come; and where the env counts the prompts its driver drops
+            (``env.dropped(root, sequences) -> [N]``: said before a junction's box the route goes straight through),
+            no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
@@ -261,6 +263,9 @@ class RetimingPlanner(MPCPlannerBase):
         need = self.margin + self.rel_margin * mean[base].abs()
         ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
+        if self.in_order and hasattr(self.env, "dropped"):  # a prompt said where the driver drops it is one skipped
+            ok &= self.env.dropped(root, seqs // self.playbacks) <= self.env.dropped(root, seqs[explore:explore + 1]
+                                                                                        // self.playbacks)
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
             size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
             ok &= spread <= self.max_spread + self.rel_spread * size

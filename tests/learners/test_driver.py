@@ -445,3 +445,34 @@ def test_ftml_regret_is_zero_where_each_round_used_the_hindsight_model_and_posit
     same = state([best] * 3).regret()  # every round used one meta model: in all together it cannot beat hindsight's
     assert 0 <= sum(same["loss_regret"]) < 0.1 * sum(worse["loss_regret"]), (same, worse)
     assert worse["average_loss_regret"][-1] == pytest.approx(sum(worse["loss_regret"]) / 3, rel=1e-9)
+
+
+def test_the_in_order_planner_never_says_a_prompt_where_its_driver_drops_it():
+    # the timing sweep's approach, a slow driver, 12 steps of explore: 11 m before a junction the route goes straight
+    # through, with explore's "prepare right" due next step. Said now, the "prepare" is dropped in that junction (the
+    # model's driver, as the world's, drops what it heard before a junction's box): on the model it is a prepare not
+    # said, which it imagines saves the slowing. The planner must not take that as a re-timing.
+    from pernav.env.sweep import sweep_route
+    from pernav.model.driver import dropped_prompts
+    from pernav.planner.retiming import Departure, RetimingPlanner
+
+    config = {"n_traffic": 0, "plan_horizon": 5, "plan_shift": 2, "future_steps": 24}
+    env = history_env("Town1", {"route": sweep_route(), "user": DriverProfile(reaction_time=2.4, decision_time=2.0),
+                                "context": Context(visual="foggy")}, config=config, seed=1)
+    root = env.rollout(13, policy=explore_module(), break_when_any_done=True)[12]
+    assert root["explore_future"][:2].tolist() == [0, int(Instruction.PREPARE_RIGHT)]
+    assert dropped_prompts(root, torch.tensor([[4] * 16, [0] + [4] * 15])).tolist() == [1, 0]
+    slow = DriverParams(reaction_time=2.85, decision_time=2.0, turn_speed=6.5, brake=3.2, accel=1.8)
+    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
+
+    class Unaware(DriverImaginedEnv):  # the same model without its count of dropped prompts
+        def __getattribute__(self, name):
+            if name == "dropped":
+                raise AttributeError(name)
+            return super().__getattribute__(name)
+
+    def action(model: DriverImaginedEnv) -> int:
+        return RetimingPlanner(model, departure=Departure(**DRIVER_PLANNER["departure"]), **options).decide(root)[0]
+
+    assert action(DriverImaginedEnv([slow])) == Instruction.NONE
+    assert action(Unaware([slow])) == Instruction.PREPARE_RIGHT  # what the check prevents
