@@ -9,7 +9,9 @@ braking and acceleration; cruise as the model's default), on the same seeds. Rea
 this is a check of the model's structure, not a learner at round time.
 
 Reports per driver: each shift's mean tracking cost and its 95 % bootstrap CI, the best shift, the planner's mean
-"turn" lead minus explore's (s; a shift of k steps moves it by about k s) and the planner's cost.
+"turn" lead minus explore's (s; a shift of k steps moves it by about k s) and the planner's cost; and, paired by seed,
+explore minus the best shift (where its CI includes 0 the approach cannot tell the best shift from explore's rule) and
+explore minus the planner.
 
     .venv/bin/python docs/research/scripts/planner_vs_best_shift.py --seeds 10 --json out.json
 """
@@ -26,7 +28,7 @@ from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.factory import env_planning_config
 from pernav.planner.retiming import Departure, RetimingPlanner, ShiftedExplore
 from pernav.study.driver_rounds import DRIVER_PLANNER, SHIFTS
-from pernav.study.stats import bootstrap_ci
+from pernav.study.stats import bootstrap_ci, paired_difference
 from pernav.trainer.collect import drive, episode_metrics, history_env
 from pernav.world.drivers import Context, DriverProfile, named_user, resolve
 
@@ -43,6 +45,11 @@ def true_params(profile: DriverProfile, context: Context) -> DriverParams:
     d = resolve(profile, context)
     return DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
                         brake=d.comfort_decel, accel=d.comfort_accel)
+
+
+def _paired(baseline: list[float], method: list[float]) -> dict[str, float]:
+    d = paired_difference(baseline, method)
+    return {"mean": round(d["mean"], 1), "ci": [round(d["low"], 1), round(d["high"], 1)]}
 
 
 def main() -> None:
@@ -71,7 +78,11 @@ def main() -> None:
             "best_shift": best,
             "planner_lead_minus_explore_s": round(statistics.mean(leads), 2) if leads else None,
             "planner_cost": round(statistics.mean(p["tracking_cost"] for p in planned), 1),
-            "explore_cost": round(statistics.mean(e["tracking_cost"] for e in explore), 1)}
+            "explore_cost": round(statistics.mean(e["tracking_cost"] for e in explore), 1),
+            # paired by seed: > 0 where the best shift (the planner) is cheaper than explore's rule
+            "explore_minus_best_shift": _paired([e["tracking_cost"] for e in explore], shifts[best]),
+            "explore_minus_planner": _paired([e["tracking_cost"] for e in explore],
+                                             [p["tracking_cost"] for p in planned])}
         print(name, json.dumps(report[name]))
     if args.json:
         with open(args.json, "w") as f:
