@@ -172,9 +172,8 @@ class DriverPrior:
     """The meta model ``P``'s driver part: ``phi``'s centre and spread (``[log R, D]``), one prompt's log-SD
     ``sigma``, and the observation part's error rates: the detector's timing ``noise`` and share of misread answers
     ``outlier``; the probability ``hit`` that a late "turn" shows as a swerve or a miss, ``false`` that one in time
-    seems to; the turn speed and braking the imagination uses where a drive shows none (:func:`read_response`); the
-    share of its speed a driver slows to on a "prepare" and the share of played prompts not acted on (misheard or
-    ignored), both fitted offline."""
+    seems to; the turn speed and braking the imagination uses where a drive shows none (:func:`read_response`); and
+    the share of its speed a driver slows to on a "prepare" (fitted offline)."""
 
     mean: tuple[float, float]
     sd: tuple[float, float]
@@ -186,7 +185,6 @@ class DriverPrior:
     turn_speed: float = 5.0
     brake: float = 2.0
     prepared: float = 0.75
-    lost: float = 0.0
 
     @classmethod
     def population(cls, log_r: tuple[float, float], decision: tuple[float, float], **rest: float) -> DriverPrior:
@@ -440,7 +438,7 @@ class DriverBelief:
         e, r = self.estimate, self.response
         sigma = math.sqrt(self.prior.sigma**2 + e.sd[0] ** 2)
         return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, r.turn_speed, r.brake, r.cruise,
-                             prepared=self.prior.prepared, accel=r.accel, lost=self.prior.lost)]
+                             prepared=self.prior.prepared, accel=r.accel)]
 
     def formula(self) -> dict[str, Any]:
         """The belief's formula on this estimate (the ablation "planner replaced by the belief's formula"): explore's

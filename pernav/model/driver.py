@@ -28,10 +28,6 @@ traffic):
   effect at (or swerved into before) the junction it goes straight through is taken there (a wrong turn), and a "turn"
   or "prepare" said before the car enters that junction is dropped there; whether it goes straight is read from the
   direction the route leaves by past the junction's box;
-* a played prompt may not be acted on at all (misheard or ignored), with a probability ``lost`` fitted offline: two
-  rows (at the median reaction, with and without following a "prepare" alone), weighted by it, do not hear the first
-  "turn" the sequence plays; there only a followed "prepare" takes the turn (what a "prepare" is worth beyond its
-  slowing: without these rows the planner saw only its cost, and delayed or dropped it);
 * on the way into a roundabout (the navigation's ``near_roundabout`` flag) nothing chooses a branch and the driver
   slows for the ring whatever it heard ("enter the roundabout" and "keep left" name no branch); on the ring
   (``in_roundabout``) a "turn" in effect when the driver commits takes the exit ahead, else it stays on the ring;
@@ -119,11 +115,10 @@ class DriverParams:
     cruise: float = 10.0  # the speed it drives at between junctions
     prepared: float = 0.75  # the share of its cruise it slows to on a "prepare"
     accel: float = 1.5  # its acceleration back to cruise
-    lost: float = 0.0  # probability that a played prompt is not acted on (misheard or ignored)
 
     def tensor(self) -> torch.Tensor:
         return torch.tensor([self.reaction_time, self.decision_time, self.sigma, self.turn_speed, self.brake,
-                             self.cruise, self.prepared, self.accel, self.lost], dtype=torch.float64)
+                             self.cruise, self.prepared, self.accel], dtype=torch.float64)
 
 
 QUANTILES = (-1.2816, -0.5244, 0.0, 0.5244, 1.2816)  # standard-normal quantiles of one prompt's reaction draw
@@ -145,7 +140,7 @@ def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
 
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float,
-             dropped_before: float = -math.inf, other_side: tuple[int, ...] = (), lost: torch.Tensor | None = None
+             dropped_before: float = -math.inf, other_side: tuple[int, ...] = ()
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
@@ -154,9 +149,7 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     none).
     A "turn" or "prepare" said before ``dropped_before`` (s) does not count: the driver drops what it heard when it
     enters a junction (it was meant for that one). One of ``other_side`` (the side the route does not turn to) names
-    the other branch: it neither chooses nor prepares the route's, and a "turn" of that side supersedes the route's.
-    In the rows where ``lost`` ``[M, 1]`` is set, the driver does not hear the first "turn" the sequence plays (one
-    prompt misheard or ignored: it supersedes nothing either)."""
+    the other branch: it neither chooses nor prepares the route's, and a "turn" of that side supersedes the route's."""
     N = sequences.shape[0]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
@@ -175,24 +168,18 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
     turn = (torch.isin(actions, torch.tensor(TURNS)) & ours).unsqueeze(0)
     dropped = (turn | prepare)[0] & (starts < dropped_before)
-    unheard = torch.zeros_like(played).unsqueeze(0)  # [1 or M, N, T]: played, but not heard in the row
-    if lost is not None and bool(lost.any()):  # the sequence's first played "turn" (of any side) is not heard
-        turns = played & torch.isin(actions, torch.tensor(TURNS)) & (starts >= 0)
-        unheard = lost.bool().unsqueeze(-1) & (turns & (turns.long().cumsum(1) == 1)).unsqueeze(0)
-    heard = (played & reach & ~dropped).unsqueeze(0) & ~unheard
-    effect = torch.where(heard, effect, torch.full_like(effect, math.inf))
+    effect = torch.where((played & reach & ~dropped).unsqueeze(0), effect, torch.full_like(effect, math.inf))
     turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
     first_turn = turn_from.min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
     # a "turn" holds until the next "turn", "prepare" or "keep left" is said: the driver acts on the latest it heard (a
     # "prepare" after a "turn" says the turn is still to come)
-    supersedes = (played & torch.isin(actions, torch.tensor((*TURNS, *PREPARES, Instruction.KEEP_LEFT)))
-                  ).unsqueeze(0) & ~unheard  # [1 or M, N, T]: what was not heard supersedes nothing
-    said = torch.where(supersedes, starts.expand_as(supersedes), torch.full_like(supersedes, math.inf, dtype=starts.dtype))
+    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, *PREPARES, Instruction.KEEP_LEFT)))  # [N, T]
+    said = torch.where(supersedes, starts.expand(N, -1), torch.full_like(effect[0], math.inf))
     # the first superseding start after each prompt's own: a reversed running minimum over the later ones
-    later = torch.cat([said[..., 1:], torch.full_like(said[..., :1], math.inf)], -1)
-    turn_until = later.flip(-1).cummin(-1).values.flip(-1)  # [1 or M, N, T]
-    return first_turn, first_prepare, turn_from, turn_until.expand_as(turn_from)
+    later = torch.cat([said[:, 1:], torch.full_like(said[:, :1], math.inf)], 1)
+    turn_until = later.flip(1).cummin(1).values.flip(1)  # [N, T]
+    return first_turn, first_prepare, turn_from, turn_until.unsqueeze(0).expand_as(turn_from)
 
 
 def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -288,9 +275,9 @@ def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, take
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
-    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 12]``: the nine
-    :class:`DriverParams` fields, whether a "prepare" alone chooses the branch (0 or 1), the row's reaction-time
-    quantile ``z`` and whether the row loses the first "turn" the sequence plays (0 or 1).
+    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 10]``: the eight
+    :class:`DriverParams` fields, whether a "prepare" alone chooses the branch (0 or 1) and the row's reaction-time
+    quantile ``z``.
 
     ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
     ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
@@ -304,7 +291,7 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     M = drivers.shape[0]
     drivers = drivers.double()
     R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
-    follow, z, lost = (drivers[:, k].reshape(M, 1) for k in (9, 10, 11))
+    follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
     v_turn, brake = drivers[:, 3].reshape(M, 1), drivers[:, 4].reshape(M, 1)
     state = hist[-1]
@@ -314,10 +301,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # at a junction (not a ring, whose exits are all "turn right"), a prompt of the side the route does not turn to
     # names the other branch: the car does not follow the route there
     other = () if ring or s_junction >= FAR else _other_side(route, s_junction)
-    heard = _effects(hist, sequences, reaction, s_first, v0, other_side=() if through else other, lost=lost)
+    heard = _effects(hist, sequences, reaction, s_first, v0, other_side=() if through else other)
     if through:
-        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1), other,
-                                      lost), heard
+        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1), other), heard
     first_turn, first_prepare = heard[:2]
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it
@@ -464,17 +450,12 @@ def _next_speed(v: torch.Tensor, d: torch.Tensor, turning: torch.Tensor, prepari
 
 class DriverImaginedEnv(EnvBase):
     """The hybrid world model as a planner's env: ``imagine(root, sequences, params)`` with ``params`` a list of
-    driver rows (:class:`DriverParams` or ``[9]`` tensors; each imagined at the reaction quantiles ``quantiles``),
-    or ``None``: :attr:`drivers`, set by whoever adapts the model (the planner reads it at every decision). A driver
-    that loses prompts (``lost`` > 0) adds two rows at the median reaction (with and without following a "prepare"
-    alone) in which the sequence's first "turn" is not heard; :meth:`weights` says how much each row counts.
+    driver rows (:class:`DriverParams` or ``[8]`` tensors; each imagined at the reaction quantiles ``quantiles``),
+    or ``None``: :attr:`drivers`, set by whoever adapts the model (the planner reads it at every decision).
 
     >>> env = DriverImaginedEnv()
-    >>> env.rows().shape, float(env.weights().sum())
-    (torch.Size([10, 12]), 1.0)
-    >>> env = DriverImaginedEnv([DriverParams(lost=0.1)])
-    >>> env.rows().shape, [round(float(w), 3) for w in env.weights()[-3:]]
-    (torch.Size([12, 12]), [0.09, 0.05, 0.05])
+    >>> env.rows().shape
+    torch.Size([10, 10])
     """
 
     def __init__(self, drivers: list[DriverParams] | None = None, quantiles: tuple[float, ...] = QUANTILES) -> None:
@@ -496,30 +477,17 @@ class DriverImaginedEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         pass
 
-    def _rows(self, params: list | None) -> tuple[torch.Tensor, torch.Tensor]:
-        drivers = params if params is not None else self.drivers
-        rows, weights = [], []
-        for d in drivers:
-            base = d.tensor() if isinstance(d, DriverParams) else torch.as_tensor(d, dtype=torch.float64)
-            lost = float(base[8])
-            # every reaction quantile, with and without following a "prepare" alone; where the driver loses prompts,
-            # the same at the median reaction with the first "turn" unheard
-            grid = [(f, z, 0.0) for f in (0.0, 1.0) for z in self.quantiles]
-            share = [(1.0 - lost) / len(grid)] * len(grid)
-            if lost > 0:
-                grid += [(0.0, 0.0, 1.0), (1.0, 0.0, 1.0)]
-                share += [lost / 2, lost / 2]
-            rows += [torch.cat([base, torch.tensor(g, dtype=torch.float64)]) for g in grid]
-            weights += [w / len(drivers) for w in share]
-        return torch.stack(rows), torch.tensor(weights, dtype=torch.float64)
-
     def rows(self, params: list | None = None) -> torch.Tensor:
-        """``[M, 12]``: each driver's rows (:func:`imagine_drive`'s ``drivers``)."""
-        return self._rows(params)[0]
-
-    def weights(self, params: list | None = None) -> torch.Tensor:
-        """``[M]``: how much each of :meth:`rows` counts in an expectation over them (they sum to 1)."""
-        return self._rows(params)[1]
+        """``[M, 10]``: every driver row at every reaction quantile, with and without following a "prepare" alone."""
+        drivers = params if params is not None else self.drivers
+        base = torch.stack([d.tensor() if isinstance(d, DriverParams) else torch.as_tensor(d, dtype=torch.float64)
+                            for d in drivers])
+        z = torch.tensor(self.quantiles, dtype=torch.float64)
+        follow = torch.tensor([0.0, 1.0], dtype=torch.float64)  # whether a "prepare" alone chooses the branch
+        n = len(base) * len(follow) * len(z)
+        return torch.cat([base.repeat_interleave(len(follow) * len(z), 0),
+                          follow.repeat_interleave(len(z)).repeat(len(base)).unsqueeze(-1),
+                          z.repeat(len(base) * len(follow)).unsqueeze(-1)], 1).reshape(n, -1)
 
     @torch.no_grad()
     def imagine(self, root: TensorDictBase, sequences: torch.Tensor, params: list | None = None

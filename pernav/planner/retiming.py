@@ -221,15 +221,6 @@ class RetimingPlanner(MPCPlannerBase):
         progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
         return cost - progress, pos
 
-    def row_weights(self, m: int) -> torch.Tensor | None:
-        """``[m]``: how much each row of the env's imagination counts, where the env says (``weights()``: e.g. a
-        driver model's rows in which a prompt is lost); ``None``: equally (a plain mean)."""
-        weights = getattr(self.env, "weights", None)
-        if weights is None or self.params is not None:
-            return None
-        w = torch.as_tensor(weights())
-        return w if w.shape == (m,) else None
-
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
         """``[N]``: how much the rows disagree on each candidate's *effect*, its positions minus explore's
@@ -263,19 +254,14 @@ class RetimingPlanner(MPCPlannerBase):
             return explore_action, None
         cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
         spread = self.effect_spread(pos, explore)
-        w = self.row_weights(cost.shape[0])  # [M] or None (equal): an expectation over the rows
-        w = None if w is None else w.to(cost.dtype)
-        mean = cost.mean(0) if w is None else (w[:, None] * cost).sum(0)
+        mean = cost.mean(0)
         base = explore
         if self.departure.wait:  # the cheapest candidate that plays explore's action now: waiting a step
             same = seqs[:, 0] == explore_action
             base = int(torch.where(same, mean, torch.full_like(mean, float("inf"))).argmin())
         gain = cost[:, base:base + 1] - cost  # [M, N]: > 0 where a candidate beats the base
         need = self.margin + self.rel_margin * mean[base].abs()
-        if w is None:
-            ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
-        else:
-            ok = ((w[:, None] * gain).sum(0) > need) & ((w[:, None] * (gain > need).to(cost.dtype)).sum(0) >= self.agree)
+        ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
         if self.in_order and hasattr(self.env, "dropped"):  # a prompt said where the driver drops it is one skipped
             ok &= self.env.dropped(root, seqs // self.playbacks) <= self.env.dropped(root, seqs[explore:explore + 1]

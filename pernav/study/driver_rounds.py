@@ -97,15 +97,6 @@ def _prepared(drives: list[LabelledDrive]) -> float:
     return sum(shares) / len(shares) if shares else DriverParams().prepared
 
 
-def _lost(drives: list[LabelledDrive]) -> float:
-    """The share of played "turn" and "prepare" prompts that never took effect (misheard or ignored), over the offline
-    drives (labelled: the world's record of each prompt)."""
-    sided = {int(a) for a in (*TURNS, *PREPARES)}
-    effects = [d.took_effect.get(s["prompt_end"]) for d in drives for s in d.steps
-               if s["played"] and s["instruction"] in sided]
-    return sum(e is None for e in effects) / len(effects) if effects else 0.0
-
-
 def labelled_evidence(drive: LabelledDrive, prior: DriverPrior, detector: AnswerDetector,
                       swerve: SwerveDetector | None) -> Evidence:
     """What ``U`` reads from an offline drive (its answers and junction outcomes), as a round reads ``tau``."""
@@ -131,7 +122,7 @@ def fit_driver(drives: list[LabelledDrive], belief_model: dict[str, Any], noise:
     D = torch.tensor([d.decision_time for d in drives], dtype=torch.float64)
     p0 = DriverPrior((float(log_r.mean()), float(D.mean())), (float(log_r.std()), float(D.std())),
                      sigma=_sigma(drives), noise=noise, outlier=outlier, hit=float(decision["hit"]),
-                     false=float(decision["false"]), prepared=_prepared(drives), lost=_lost(drives))
+                     false=float(decision["false"]), prepared=_prepared(drives))
     detector, swerve = detectors(belief_model)
     pairs = [labelled_evidence(d, p0, detector, swerve).halves() for d in drives]
     meta = meta_train(p0, pairs)

@@ -21,7 +21,7 @@ from pernav.learners.driver import (
 )
 from pernav.learners.outcomes import DECISION_GRID
 from pernav.model.driver import DriverImaginedEnv, DriverParams, _goes_straight
-from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, _lost, _prepared, fit_driver
+from pernav.study.driver_rounds import DRIVER_PLANNER, DriverState, _prepared, fit_driver
 from pernav.trainer.collect import drive, history_env
 from pernav.world.constants import Instruction
 from pernav.world.drivers import Context, DriverProfile
@@ -327,32 +327,6 @@ def test_the_offline_fit_reads_the_populations_slowing_on_a_prepare_and_ftml_kee
     # the simulated population slows on a "prepare", but less than the model's own assumption of 3/4 of its speed
     assert 0.75 < driver_state["prior0"]["prepared"] < 1.0
     assert driver_state["prior"]["prepared"] == driver_state["prior0"]["prepared"]
-    # some played prompts are misheard or ignored (the world's understanding and compliance: a few in a hundred)
-    assert 0.01 < driver_state["prior0"]["lost"] < 0.3
-    assert driver_state["prior"]["lost"] == driver_state["prior0"]["lost"]
-
-
-def test_the_share_of_lost_prompts_is_read_from_the_labelled_drives():
-    drive = _prepare_drive(None)  # its "prepare" never took effect, its "turn" did
-    assert _lost([drive]) == pytest.approx(0.5)
-    assert _lost([_prepare_drive(8.0)]) == 0.0
-
-
-def test_a_driver_that_loses_prompts_misses_a_turn_said_alone_but_may_follow_its_prepare():
-    # a right turn 150 m on at 10 m/s; rows: 10 that hear everything, then 2 (without and with following a "prepare"
-    # alone) that do not hear the first "turn"
-    root = _right_turn_root(points=160, turn_at=55, distance=150.0)
-    env = DriverImaginedEnv([DriverParams(reaction_time=1.0, cruise=10.0, lost=0.2)])
-    w = env.weights()
-    assert w.shape == (12,) and float(w.sum()) == pytest.approx(1.0) and float(w[-2:].sum()) == pytest.approx(0.2)
-    right, prep = int(Instruction.TURN_RIGHT), int(Instruction.PREPARE_RIGHT)
-    alone = torch.cat([torch.zeros(6, dtype=torch.long), torch.full((16,), right)])
-    prepared = torch.cat([torch.zeros(2, dtype=torch.long), torch.full((4,), prep), torch.full((16,), right)])
-    pos, _ = env.imagine(root, torch.stack([alone, prepared]))
-    turned = pos[:, :, -1, 1] > 5.0  # [12, 2]
-    assert bool(turned[:10].all())  # heard: both turn
-    assert not bool(turned[10:, 0].any())  # the "turn" alone, unheard: missed
-    assert turned[10:, 1].tolist() == [False, True]  # with its "prepare": followed where a prepare alone chooses
 
 
 # ----- on simulated drives -------------------------------------------------------------------------------------
