@@ -1,0 +1,60 @@
+"""Would a shift of explore's rule chosen on the hybrid model match ``best_shift``? (a policy-level search, measured)
+
+The re-timing planner leaves explore only for a per-decision gain past its margin, and the gains ``best_shift`` finds
+are a few per episode: too small for any one decision. A search over the constant shifts themselves, summed over a
+whole drive, would average the model's errors over many states. This measures whether the model, given a driver's
+*true* parameters (as ``planner_vs_best_shift.py``; allowed here: a check of the model, not a learner), ranks the
+shifts as the true simulator does on the sweep approach. At every step of explore's drive, each shift's plan
+(``k`` > 0: explore's plan ``k`` steps ahead; ``k`` < 0: its prompts of ``-k`` steps ago, then its plan) is imagined
+over the planner's horizon; the imagined cost over explore's plan is summed over the steps and the drives.
+
+    .venv/bin/python docs/research/scripts/model_shift.py --seeds 5
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params
+
+from pernav.env.sweep import sweep_route
+from pernav.env.torchrl_env import explore_module
+from pernav.model.driver import DriverImaginedEnv
+from pernav.planner.retiming import Departure, RetimingPlanner
+from pernav.study.driver_rounds import SHIFTS
+from pernav.trainer.collect import drive, history_env
+
+PLAN_SHIFT = 2  # how far back the env's explore_plan reaches (CONFIG's plan_shift)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=5)
+    args = parser.parse_args()
+    horizon = OPTIONS["horizon"]
+    for name, (profile, context) in DRIVERS.items():
+        planner = RetimingPlanner(DriverImaginedEnv([true_params(profile, context)]),
+                                  departure=Departure(**DRIVER_PLANNER["departure"]), **OPTIONS)
+        totals = dict.fromkeys(SHIFTS, 0.0)
+        for seed in range(args.seeds):
+            env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG,
+                              seed=seed)
+            trajectory = drive(env, explore_module())
+            for t in range(trajectory.shape[0]):
+                root = trajectory[t]
+                future, plan = root["explore_future"].long(), root["explore_plan"].long()
+                seqs = torch.stack([future[k:k + horizon] if k >= 0 else
+                                    torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in SHIFTS])
+                explore = SHIFTS.index(0)
+                if bool((seqs == seqs[explore]).all()):
+                    continue
+                mean = planner.costs(root, seqs)[0].mean(0)
+                for i, k in enumerate(SHIFTS):
+                    totals[k] += float(mean[i] - mean[explore])
+        print(name, "the model's shift:", min(totals, key=totals.get),
+              "imagined cost over explore's, summed:", {k: round(v, 1) for k, v in totals.items()})
+
+
+if __name__ == "__main__":
+    main()
