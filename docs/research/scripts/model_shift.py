@@ -14,9 +14,10 @@ over the planner's horizon; the imagined cost over explore's plan is summed over
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import torch
-from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params
 
 from pernav.env.sweep import sweep_route
 from pernav.env.torchrl_env import explore_module
@@ -24,6 +25,9 @@ from pernav.model.driver import DriverImaginedEnv
 from pernav.planner.retiming import Departure, RetimingPlanner
 from pernav.study.driver_rounds import SHIFTS
 from pernav.trainer.collect import drive, history_env
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params  # noqa: E402  (its approach and drivers)
 
 PLAN_SHIFT = 2  # how far back the env's explore_plan reaches (CONFIG's plan_shift)
 
