@@ -264,8 +264,8 @@ class RetimingPlanner(MPCPlannerBase):
         ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
         if self.in_order and hasattr(self.env, "dropped"):  # a prompt said where the driver drops it is one skipped
-            ok &= self.env.dropped(root, seqs // self.playbacks) <= self.env.dropped(root, seqs[explore:explore + 1]
-                                                                                        // self.playbacks)
+            dropped = self.env.dropped(root, seqs // self.playbacks)  # [N]
+            ok &= dropped <= dropped[explore]
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
             size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
             ok &= spread <= self.max_spread + self.rel_spread * size
