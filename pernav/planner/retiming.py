@@ -56,7 +56,7 @@ from torchrl.modules.planners import MPCPlannerBase
 from pernav.env.layout import ROUTE_SPACING, STATE_DIM
 from pernav.model.egocentric import GX, GY
 from pernav.planner.discrete import planning_roots
-from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, Instruction
+from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, PREPARES, Instruction
 from pernav.world.cost import tracking_cost
 
 __all__ = ["Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "ShiftedExplore", "candidate_plans"]
@@ -177,15 +177,18 @@ class RetimingPlanner(MPCPlannerBase):
             explore's "prepare" is still to come; and where the env counts the prompts its driver drops
             (``env.dropped(root, sequences) -> [N]``: said before a junction's box the route goes straight through),
             no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
+        prepare_early: a "prepare" may be said before explore says it. ``False``: a candidate that says a "prepare"
+            now where explore's plan does not is refused, so only the "turn" (and silences) are re-timed.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
-                 in_order: bool = False) -> None:
+                 in_order: bool = False, prepare_early: bool = True) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
         self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
+        self.prepare_early = bool(prepare_early)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
@@ -266,6 +269,9 @@ class RetimingPlanner(MPCPlannerBase):
         if self.in_order and hasattr(self.env, "dropped"):  # a prompt said where the driver drops it is one skipped
             dropped = self.env.dropped(root, seqs // self.playbacks)  # [N]
             ok &= dropped <= dropped[explore]
+        if not self.prepare_early:  # a "prepare" no earlier than explore's: only the "turn" is re-timed
+            first = seqs[:, 0] // self.playbacks
+            ok &= ~(torch.isin(first, torch.tensor(PREPARES)) & (first != explore_action // self.playbacks))
         if self.max_spread is not None:  # the rows must agree on what the re-timing does, not only on the gain
             size = (pos - pos[:, explore:explore + 1]).mean(0).norm(dim=-1).amax(-1)  # [N] the mean effect's size
             ok &= spread <= self.max_spread + self.rel_spread * size

@@ -471,8 +471,11 @@ def test_the_in_order_planner_never_says_a_prompt_where_its_driver_drops_it():
                 raise AttributeError(name)
             return super().__getattribute__(name)
 
-    def action(model: DriverImaginedEnv) -> int:
-        return RetimingPlanner(model, departure=Departure(**DRIVER_PLANNER["departure"]), **options).decide(root)[0]
+    def action(model: DriverImaginedEnv, prepare_early: bool = True) -> int:
+        return RetimingPlanner(model, departure=Departure(**DRIVER_PLANNER["departure"]),
+                               **{**options, "prepare_early": prepare_early}).decide(root)[0]
 
     assert action(DriverImaginedEnv([slow])) == Instruction.NONE
     assert action(Unaware([slow])) == Instruction.PREPARE_RIGHT  # what the check prevents
+    # with prepare_early=False no "prepare" is said before explore says it, whatever the model imagines of it
+    assert action(Unaware([slow]), prepare_early=False) == Instruction.NONE
