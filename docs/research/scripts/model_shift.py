@@ -29,7 +29,7 @@ from pernav.trainer.collect import drive, history_env
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params  # noqa: E402  (its approach and drivers)
 
-PLAN_SHIFT = 2  # how far back the env's explore_plan reaches (CONFIG's plan_shift)
+PLAN_SHIFT = CONFIG["plan_shift"]  # how far back the env's explore_plan reaches
 
 
 def main() -> None:
