@@ -46,7 +46,7 @@ from pernav.learners.belief import DT, AnswerDetector, BeliefTracker
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.retiming import Departure, RetimingPlanner
-from pernav.world.constants import AUDIO_DURATION, PREPARES, TURNS
+from pernav.world.constants import TURNS
 
 __all__ = ["DriverBelief", "DriverPlanner", "DriverPrior", "DriverTracker", "Evidence", "Response", "adapt_phi",
            "meta_loss", "meta_train", "read_response", "tau_loss"]
@@ -56,8 +56,6 @@ CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise re
 NEAR_JUNCTION = 8.0  # m: a "turn" step this close to its junction drives at the driver's turn speed
 APPROACH = 80.0  # m: a "turn" step's braking this close to its junction is braking for the turn
 MOVING = 0.5  # m/s, m/s^2: slower frames (stopped at a line, in a queue) and weaker pedals say nothing of the driver
-PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read
-MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 NEWTON_HALVINGS = 8  # U halves its step at most this often before it keeps the start
 
 
@@ -129,20 +127,17 @@ class Response:
     turn_speed: float = 5.0
     brake: float = 2.0
     accel: float = 1.5
-    prepared: float = 0.75  # the share of its speed it slows to on a "prepare" (:func:`read_prepared`)
 
     def to_dict(self) -> dict[str, float]:
         return {k: round(float(v), 3) for k, v in self.__dict__.items()}
 
 
-def read_response(trajectory: TensorDictBase, default: Response = Response(), reaction: float | None = None
-                  ) -> Response:
+def read_response(trajectory: TensorDictBase, default: Response = Response()) -> Response:
     """The driver's speeds in ``trajectory`` (a drive: ``"action"``, ``"distance_to_junction"`` and the
     ``("next", "frames")`` the car's sensors gave): its cruise (a high quantile of its speeds), its turn speed (the
     median speed of the "turn" steps within :data:`NEAR_JUNCTION` of their junction), its braking for a turn (the
     median deceleration of the "turn" steps within :data:`APPROACH`) and its acceleration (the median of its
-    accelerating frames); ``default``'s where the drive shows none (no turn, never braked). Given the driver's mean
-    ``reaction`` time as known before the drive, also its slowing on a "prepare" (:func:`read_prepared`).
+    accelerating frames); ``default``'s where the drive shows none (no turn, never braked).
 
     >>> from tensordict import TensorDict
     >>> frames = torch.zeros(3, 10, 5); frames[..., 0] = torch.tensor([12.0, 9.0, 4.0])[:, None]
@@ -169,45 +164,7 @@ def read_response(trajectory: TensorDictBase, default: Response = Response(), re
     return Response(cruise=float(frames[..., speed].reshape(-1).quantile(CRUISE_QUANTILE)),
                     turn_speed=median(near[near > MOVING], default.turn_speed),
                     brake=median(braking[braking > MOVING], default.brake),
-                    accel=median(rising[rising > MOVING], default.accel),
-                    prepared=default.prepared if reaction is None else read_prepared(trajectory, reaction,
-                                                                                     default.prepared))
-
-
-def read_prepared(trajectory: TensorDictBase, reaction: float, default: float) -> float:
-    """The share of its speed the driver slows to on a "prepare" in ``trajectory`` (a drive: ``"action"`` and the
-    frames the car's sensors gave): for each "prepare" first said at a speed above :data:`MOVING_AT`, the least speed
-    from its effect (its audio's end plus ``reaction``, the driver's mean reaction time as known before the drive)
-    until its "turn"'s effect (at most :data:`PREPARE_WINDOW` s), over the speed then; their mean, shrunk toward
-    ``default`` (``P``'s, fitted offline) by one prepare's weight; ``default`` where the drive shows none.
-
-    >>> from tensordict import TensorDict
-    >>> frames = torch.full((8, 10, 5), 10.0); frames[4:, :, 0] = 6.0       # slows from 10 to 6 m/s
-    >>> tau = TensorDict({"action": torch.tensor([0, 4, 0, 0, 0, 0, 0, 0]), "next": {"frames": frames}}, [8])
-    >>> round(read_prepared(tau, reaction=1.0, default=0.8), 2)               # (0.6 + 0.8) / 2
-    0.7
-    """
-    speed_at = FRAME_KEYS.index("speed")
-    frames = trajectory["next", "frames"].double()
-    if not frames.numel():
-        return default
-    T, F = frames.shape[:2]
-    speed = frames[..., speed_at].reshape(-1)
-    times = (torch.arange(T, dtype=torch.float64).reshape(T, 1) + torch.arange(1, F + 1) / F).reshape(-1)
-    action = trajectory["action"].reshape(-1).long().tolist()
-    prepares, turns = {int(p) for p in PREPARES}, {int(t) for t in TURNS}
-    shares = []
-    for t, a in enumerate(action):
-        if a not in prepares or (t > 0 and action[t - 1] == a):  # a held prompt is not said again
-            continue
-        effect = t + AUDIO_DURATION[a] + reaction
-        turn = next((u + AUDIO_DURATION[action[u]] + reaction for u in range(t + 1, T) if action[u] in turns),
-                    math.inf)
-        window = (times >= effect) & (times <= min(turn, effect + PREPARE_WINDOW))
-        start = speed[int(torch.argmin((times - effect).abs()))]
-        if int(window.sum()) >= 3 and float(start) > MOVING_AT:
-            shares.append(float(speed[window].min() / start))
-    return (sum(shares) + default) / (len(shares) + 1)
+                    accel=median(rising[rising > MOVING], default.accel))
 
 
 @dataclass(frozen=True)
@@ -240,7 +197,7 @@ class DriverPrior:
 
     def speeds(self) -> Response:
         """The driver's speeds where its drives show none (:func:`read_response`'s default)."""
-        return Response(turn_speed=self.turn_speed, brake=self.brake, prepared=self.prepared)
+        return Response(turn_speed=self.turn_speed, brake=self.brake)
 
     def centre(self) -> torch.Tensor:
         return torch.tensor(self.mean, dtype=torch.float64)
@@ -477,11 +434,11 @@ class DriverBelief:
 
     def drivers(self) -> list[DriverParams]:
         """The imagination's driver row: the estimate, one prompt's spread widened by the estimate's own (the
-        predictive reaction time), the speeds and the slowing on a "prepare" read from the driver's drives."""
+        predictive reaction time), the speeds read from the driver's drives, ``P``'s slowing on a "prepare"."""
         e, r = self.estimate, self.response
         sigma = math.sqrt(self.prior.sigma**2 + e.sd[0] ** 2)
         return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, r.turn_speed, r.brake, r.cruise,
-                             prepared=r.prepared, accel=r.accel)]
+                             prepared=self.prior.prepared, accel=r.accel)]
 
     def formula(self) -> dict[str, Any]:
         """The belief's formula on this estimate (the ablation "planner replaced by the belief's formula"): explore's

@@ -28,8 +28,6 @@ from pernav.env.navigation import FRAME_KEYS
 from pernav.learners.answers import LabelledDrive
 from pernav.learners.belief import AnswerDetector, detectors, frame_series
 from pernav.learners.driver import (
-    MOVING_AT,
-    PREPARE_WINDOW,
     DriverBelief,
     DriverPrior,
     DriverTracker,
@@ -50,6 +48,8 @@ __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_dri
 DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "adapt_driver_formula")
 #: the constant shifts (steps; > 0 earlier) best_shift chooses from: as far back as the env's plan reaches, 3 ahead
 SHIFTS = (-2, -1, 0, 1, 2, 3)
+PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read (offline)
+MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 #: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain) where waiting a step (the
 #: cheapest candidate that plays explore's action now) costs more; its fine choices keep explore's order (no "turn"
@@ -154,9 +154,7 @@ class DriverState:
     def read_tau(self, user: str, label: str, tau: Any, methods: list[str]) -> dict[str, DriverTracker]:
         """Each method's tracker for the round's episodes: ``U`` on ``tau`` from this user's estimate so far (the
         meta model's centre on a first drive), and the evidence ``tau`` gave (kept for the meta update)."""
-        saved = self.data["estimates"].get("adapt_driver", {}).get(user)  # its reaction time so far: P's on a first drive
-        known = Estimate(**saved).reaction_time if saved else self.prior("adapt_driver").reaction_time
-        response = read_response(tau, self.prior("adapt_driver").speeds(), reaction=known)
+        response = read_response(tau, self.prior("adapt_driver").speeds())
         chains = {"adapt_driver_prior" if m == "adapt_driver_prior" else "adapt_driver"
                   for m in methods if m != "adapt_driver_static"}
         estimates: dict[str, Estimate] = {}
