@@ -5,7 +5,11 @@ chooses on a constructed approach. The approach is the timing sweep's (Town1: st
 no traffic; ``pernav.env.sweep``), driven by four drivers (a slow and a quick profile, user3 in the truck in fog,
 user4 on the keyboard) with every shift of explore's rule (``SHIFTS``), explore itself, and the planner
 (``DRIVER_PLANNER``) on ``DriverParams`` read from the simulated driver (reaction and decision time, turn speed,
-braking and acceleration; cruise as the model's default), on the same seeds. Reading the profile is allowed here:
+braking and acceleration; its cruise read from an explore drive of its own on another seed, as the learner reads it:
+before the fifteenth session it was the model's default, 10 m/s, whatever the driver's), on the same seeds. Two
+constructed extremes are added: a very slow driver (the slowest reaction and decision time, the fastest cruise, the
+gentlest braking, in fog) and a very quick one (the quickest reaction and decision, the slowest cruise, the hardest
+braking). Reading the profile is allowed here:
 this is a check of the model's structure, not a learner at round time.
 
 Reports per driver: each shift's mean tracking cost and its 95 % bootstrap CI, the best shift, the planner's mean
@@ -24,6 +28,7 @@ import statistics
 
 from pernav.env.sweep import sweep_route
 from pernav.env.torchrl_env import explore_module
+from pernav.learners.driver import read_response
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.factory import env_planning_config
 from pernav.planner.retiming import Departure, RetimingPlanner, ShiftedExplore
@@ -37,14 +42,22 @@ CONFIG = {"n_traffic": 0, **env_planning_config({"kind": "retime", **OPTIONS})}
 DRIVERS = {"slow": (DriverProfile(reaction_time=2.4, decision_time=2.0), Context(visual="foggy")),
            "quick": (DriverProfile(reaction_time=0.6, decision_time=1.5), Context()),
            "user3_truck_fog": (named_user("user3"), Context(vehicle="cybertruck", visual="foggy")),
-           "user4_keyboard": (named_user("user4"), Context(equipment="keyboard"))}
+           "user4_keyboard": (named_user("user4"), Context(equipment="keyboard")),
+           "very_slow": (DriverProfile(reaction_time=2.5, speed_factor=1.15, decision_time=3.0, memory=30.0,
+                                       comfort_decel=1.5), Context(visual="foggy")),
+           "very_quick": (DriverProfile(reaction_time=0.5, speed_factor=0.8, decision_time=1.0, memory=8.0,
+                                        comfort_decel=5.0), Context())}
+CRUISE_SEED = 10_000  # the drive the cruise is read from: none of the evaluation's seeds
 
 
 def true_params(profile: DriverProfile, context: Context) -> DriverParams:
-    """The hybrid model's parameters as the simulated driver has them."""
+    """The hybrid model's parameters as the simulated driver has them; its cruise read from a drive of its own."""
     d = resolve(profile, context)
+    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG,
+                      seed=CRUISE_SEED)
     return DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
-                        brake=d.comfort_decel, accel=d.comfort_accel)
+                        brake=d.comfort_decel, accel=d.comfort_accel,
+                        cruise=read_response(drive(env, explore_module())).cruise)
 
 
 def _paired(baseline: list[float], method: list[float]) -> dict[str, float]:
@@ -55,10 +68,13 @@ def _paired(baseline: list[float], method: list[float]) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=0, help="the seeds are first-seed .. first-seed + seeds - 1")
+    parser.add_argument("--drivers", nargs="+", default=list(DRIVERS), choices=list(DRIVERS))
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
-    route, seeds, report = sweep_route(), range(args.seeds), {}
-    for name, (profile, context) in DRIVERS.items():
+    route, seeds, report = sweep_route(), range(args.first_seed, args.first_seed + args.seeds), {}
+    for name in args.drivers:
+        profile, context = DRIVERS[name]
         def run(policy, seed: int, profile=profile, context=context) -> dict:
             env = history_env("Town1", {"route": route, "user": profile, "context": context}, config=CONFIG,
                               seed=seed)
@@ -86,7 +102,7 @@ def main() -> None:
         print(name, json.dumps(report[name]))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"seeds": args.seeds, "drivers": report}, f, indent=1)
+            json.dump({"seeds": args.seeds, "first_seed": args.first_seed, "drivers": report}, f, indent=1)
 
 
 if __name__ == "__main__":
