@@ -75,14 +75,16 @@ class RetimingResult:
 
 
 def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, horizon: int, advance: int,
-                    delay: int, in_order: bool = False) -> tuple[torch.Tensor, int]:
+                    delay: int, in_order: bool = False, kept_delays: bool = False) -> tuple[torch.Tensor, int]:
     """The candidate instruction sequences ``[N, horizon]`` (unique) and the index of explore's own plan.
 
     ``future`` holds explore's instructions for the next steps (at least ``horizon + advance``), ``last``
     the instruction played last step, ``allowed`` the instructions the situation allows now. With ``in_order``
     the fine choices keep explore's order as the advances do: an instruction said now is a candidate only if it
     skips none that explore would say before it within reach (a "turn" now is none while explore's "prepare" is
-    still to come).
+    still to come). With ``kept_delays`` a delay of ``k`` is a candidate only where explore still says its next
+    prompt ``k`` steps after it is due: explore says a "prepare" over a window of distance, and a "prepare" held back
+    past it is never said (explore's plan then goes straight to the "turn"), so the delayed plan could not be played.
 
     >>> seqs, e = candidate_plans(torch.tensor([0, 0, 4, 4, 2, 2, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 2, 1)
     >>> seqs[e].tolist()
@@ -95,6 +97,9 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     >>> seqs, e = candidate_plans(torch.tensor([0, 4, 4, 2, 2, 0, 0, 0]), 0, torch.tensor([0, 2, 4]), 4, 3, 0, True)
     >>> [2, 2, 2, 2] in seqs.tolist(), [4, 4, 4, 4] in seqs.tolist()  # "turn" now would skip the "prepare"
     (False, True)
+    >>> seqs, e = candidate_plans(torch.tensor([4, 4, 2, 2, 2, 2, 0, 0]), 0, torch.tensor([0]), 4, 0, 2, kept_delays=True)
+    >>> seqs.tolist()  # delayed 2 steps the "prepare" is past explore's window: no such candidate
+    [[0, 4, 4, 2], [4, 4, 2, 2]]
     """
     H = horizon
     pad = future[-1:].expand(H + advance)  # past the known future the plan stays as it ends
@@ -105,7 +110,13 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     # now): "turn left" due now, advanced past, would leave the driver with the *next* manoeuvre's prompt
     skipped = [{int(a) for a in future[:k].tolist()} - {Instruction.NONE, last, int(future[k])} for k in range(advance + 1)]
     rows += [future[k:k + H] for k in range(1, advance + 1) if not skipped[k]]
-    rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)]
+    due = next((j for j, a in enumerate(future[:H].tolist()) if a not in (Instruction.NONE, last)), None)
+
+    def kept(k: int) -> bool:  # explore still says its next prompt k steps after it is due
+        return not kept_delays or due is None or int(future[due + k]) == int(future[due])
+
+    rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)
+             if kept(k)]
     if bool(future[: advance + 1].any()):  # a prompt is due within reach: the fine choices now as well
         reach = future[: advance + 1].tolist()
 
@@ -179,16 +190,19 @@ class RetimingPlanner(MPCPlannerBase):
             no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
         prepare_early: a "prepare" may be said before explore says it. ``False``: a candidate that says a "prepare"
             now where explore's plan does not is refused, so only the "turn" (and silences) are re-timed.
+        kept_delays: a delay is a candidate only where explore's plan still says the delayed prompt at its later
+            time (:func:`candidate_plans`), so that the plan imagined can be played: a "prepare" delayed step after
+            step past explore's window is otherwise never said.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
-                 in_order: bool = False, prepare_early: bool = True) -> None:
+                 in_order: bool = False, prepare_early: bool = True, kept_delays: bool = False) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
         self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
-        self.prepare_early = bool(prepare_early)
+        self.prepare_early, self.kept_delays = bool(prepare_early), bool(kept_delays)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
@@ -240,7 +254,8 @@ class RetimingPlanner(MPCPlannerBase):
         last = int(last_onehot.argmax()) // self.playbacks if bool(last_onehot.any()) else 0
         mask = root["action_mask"][0].bool()
         allowed = mask.reshape(-1, self.playbacks).any(-1).nonzero().squeeze(-1)
-        seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay, self.in_order)
+        seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay, self.in_order,
+                                        self.kept_delays)
         return self._actions(seqs)[0], explore
 
     def searches(self, root: TensorDictBase) -> bool:
