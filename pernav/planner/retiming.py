@@ -7,7 +7,8 @@ residual of explore, as the paper intends), over a horizon long enough to see th
 
 * ``advance k`` (k = 1..A): the explore plan ``k`` steps early (its next prompt said now, if it is within k;
   never skipping an instruction explore would say before it);
-* ``delay k`` (k = 1..D): silence (or the held prompt) for ``k`` more steps, then the explore plan;
+* ``delay k`` (k = 1..D): silence (or the held prompt) for ``k`` more steps, then the explore plan (with
+  ``kept_delays``, only where explore still says the delayed prompt ``k`` steps on);
 * ``say a now``: every instruction the situation allows at this step (the fine choice near a junction),
   held for the horizon (a held instruction is not replayed);
 * with 21 actions, each of these at the three playback speeds.

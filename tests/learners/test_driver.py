@@ -528,3 +528,35 @@ def test_on_its_true_parameters_the_planner_does_not_prompt_a_very_quick_driver_
     leads = [p["turn_lead"] - e["turn_lead"] for p, e in zip(planned, explore, strict=True)]
     assert statistics.mean(leads) < 1.5  # no earlier than best_shift's side of the +2 that the approach rules out
     assert statistics.mean(p["tracking_cost"] for p in planned) < min(statistics.mean(cost[k]) for k in (2, 3))
+
+
+def test_with_kept_delays_the_planner_says_the_prepare_it_holds_back_before_explore_stops_saying_it():
+    # The sweep's approach, the quick profile on its true parameters and cruise (seed 11). The planner holds explore's
+    # "prepare" back, imagining it still to come; explore says it only over a window of distance, so after three
+    # delays it is gone from explore's plan and the "turn" is said alone. With kept_delays a delay is a candidate only
+    # where explore still says the delayed prompt then, so the "prepare" is said before the "turn".
+    from pernav.env.sweep import sweep_route
+    from pernav.planner.factory import env_planning_config
+    from pernav.planner.retiming import Departure, RetimingPlanner
+
+    profile = DriverProfile(reaction_time=0.6, decision_time=1.5)
+    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
+    config = {"n_traffic": 0, **env_planning_config({"kind": "retime", **options})}
+
+    def actions(policy, seed: int) -> list[int]:
+        env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()}, config=config,
+                          seed=seed)
+        return drive(env, policy)["action"].reshape(-1).tolist()
+
+    cruise = read_response(drive(history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()},
+                                             config=config, seed=10_000), explore_module())).cruise
+    params = DriverParams(reaction_time=0.6, decision_time=1.5, turn_speed=6.5, brake=3.2, accel=1.8, cruise=cruise)
+
+    def first_prompts(kept_delays: bool) -> list[int]:
+        planner = RetimingPlanner(DriverImaginedEnv([params]), departure=Departure(**DRIVER_PLANNER["departure"]),
+                                  **{**options, "kept_delays": kept_delays})
+        said = [a for a in actions(planner, 11) if a != Instruction.NONE]
+        return said[:2]
+
+    assert first_prompts(False) == [Instruction.TURN_RIGHT] * 2  # the "prepare" was never said
+    assert first_prompts(True)[0] == Instruction.PREPARE_RIGHT
