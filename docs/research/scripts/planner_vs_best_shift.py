@@ -2,8 +2,8 @@
 
 adapt_driver's acceptance asks that the re-timing planner on the true driver parameters choose what ``best_shift``
 chooses on a constructed approach. The approach is the timing sweep's (Town1: straight through J11, right at J12,
-no traffic; ``pernav.env.sweep``), driven by four drivers (a slow and a quick profile, user3 in the truck in fog,
-user4 on the keyboard) with every shift of explore's rule (``SHIFTS``), explore itself, and the planner
+no traffic; ``pernav.env.sweep``), driven by a slow and a quick profile, user3 in the truck in fog and user4 on the
+keyboard (and the two extremes below) with every shift of explore's rule (``SHIFTS``), explore itself, and the planner
 (``DRIVER_PLANNER``) on ``DriverParams`` read from the simulated driver (reaction and decision time, turn speed,
 braking and acceleration; its cruise read from an explore drive of its own on another seed, as the learner reads it:
 before the fifteenth session it was the model's default, 10 m/s, whatever the driver's), on the same seeds. Two
