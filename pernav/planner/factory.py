@@ -50,7 +50,7 @@ def build_planner(env: Any, options: Mapping[str, Any], n_actions: int | None = 
     if kind == "paper":
         beam = opts.pop("beam_speed")
         return TreeSearchPlanner(env, beam=beam if n_actions == N_ADAPTIVE_ACTIONS else None, **opts)
-    departure = Departure(**{f.name: opts.pop(f.name) for f in fields(Departure)})
+    departure = Departure(**{f.name: opts.pop(f.name) for f in fields(Departure) if f.name in opts})
     return RetimingPlanner(env, departure=departure, **opts)
 
 

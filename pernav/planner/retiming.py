@@ -8,7 +8,7 @@ residual of explore, as the paper intends), over a horizon long enough to see th
 * ``advance k`` (k = 1..A): the explore plan ``k`` steps early (its next prompt said now, if it is within k;
   never skipping an instruction explore would say before it);
 * ``delay k`` (k = 1..D): silence (or the held prompt) for ``k`` more steps, then the explore plan (with
-  ``kept_delays``, only where explore still says the delayed prompt ``k`` steps on);
+  ``Departure(kept_delays=True)``, only where explore still says the delayed prompt ``k`` steps on);
 * ``say a now``: every instruction the situation allows at this step (the fine choice near a junction),
   held for the horizon (a held instruction is not replayed);
 * with 21 actions, each of these at the three playback speeds.
@@ -150,6 +150,9 @@ class Departure:
             and the next decision may still leave explore, so what the planner must beat is waiting a step. Where
             the car's speed changes, explore's plan (imagined at the speed now) says its prompts at times explore
             itself would not, and against it alone a prompt now can look far cheaper than it is.
+        kept_delays: leave explore for a delay only where explore's plan still says the delayed prompt at its later
+            time (:func:`candidate_plans`), so that the plan imagined can be played: a "prepare" delayed step after
+            step past explore's window is otherwise never said.
 
     >>> Departure(margin=-1e12, agree=1e-9).rel_margin
     0.05
@@ -161,6 +164,7 @@ class Departure:
     max_spread: float | None = 2.0
     rel_spread: float = 0.0
     wait: bool = False
+    kept_delays: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 < self.agree <= 1.0:
@@ -191,23 +195,21 @@ class RetimingPlanner(MPCPlannerBase):
             no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
         prepare_early: a "prepare" may be said before explore says it. ``False``: a candidate that says a "prepare"
             now where explore's plan does not is refused, so only the "turn" (and silences) are re-timed.
-        kept_delays: a delay is a candidate only where explore's plan still says the delayed prompt at its later
-            time (:func:`candidate_plans`), so that the plan imagined can be played: a "prepare" delayed step after
-            step past explore's window is otherwise never said.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
-                 in_order: bool = False, prepare_early: bool = True, kept_delays: bool = False) -> None:
+                 in_order: bool = False, prepare_early: bool = True) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
         self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
-        self.prepare_early, self.kept_delays = bool(prepare_early), bool(kept_delays)
+        self.prepare_early = bool(prepare_early)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
         self.max_spread, self.rel_spread = departure.max_spread, departure.rel_spread
+        self.kept_delays = departure.kept_delays
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (N_PLAYBACKS if n_actions == N_ADAPTIVE_ACTIONS else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)

@@ -553,8 +553,8 @@ def test_with_kept_delays_the_planner_says_the_prepare_it_holds_back_before_expl
     params = DriverParams(reaction_time=0.6, decision_time=1.5, turn_speed=6.5, brake=3.2, accel=1.8, cruise=cruise)
 
     def first_prompts(kept_delays: bool) -> list[int]:
-        planner = RetimingPlanner(DriverImaginedEnv([params]), departure=Departure(**DRIVER_PLANNER["departure"]),
-                                  **{**options, "kept_delays": kept_delays})
+        departure = Departure(**{**DRIVER_PLANNER["departure"], "kept_delays": kept_delays})
+        planner = RetimingPlanner(DriverImaginedEnv([params]), departure=departure, **options)
         said = [a for a in actions(planner, 11) if a != Instruction.NONE]
         return said[:2]
 
