@@ -111,10 +111,11 @@ def candidate_plans(future: torch.Tensor, last: int, allowed: torch.Tensor, hori
     # now): "turn left" due now, advanced past, would leave the driver with the *next* manoeuvre's prompt
     skipped = [{int(a) for a in future[:k].tolist()} - {Instruction.NONE, last, int(future[k])} for k in range(advance + 1)]
     rows += [future[k:k + H] for k in range(1, advance + 1) if not skipped[k]]
-    due = next((j for j, a in enumerate(future[:H].tolist()) if a not in (Instruction.NONE, last)), None)
+    due = next((j for j, a in enumerate(future[:H].tolist()) if a not in (Instruction.NONE, last)), None) \
+        if kept_delays else None
 
     def kept(k: int) -> bool:  # explore still says its next prompt k steps after it is due
-        return not kept_delays or due is None or int(future[due + k]) == int(future[due])
+        return due is None or int(future[due + k]) == int(future[due])
 
     rows += [torch.cat([torch.full((k,), held, dtype=future.dtype), future[: H - k]]) for k in range(1, delay + 1)
              if kept(k)]
@@ -209,7 +210,6 @@ class RetimingPlanner(MPCPlannerBase):
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
         self.max_spread, self.rel_spread = departure.max_spread, departure.rel_spread
-        self.kept_delays = departure.kept_delays
         n_actions = int(env.action_spec.space.n)
         self.playbacks = playbacks or (N_PLAYBACKS if n_actions == N_ADAPTIVE_ACTIONS else 1)
         self.params: list[TensorDictBase | None] | TensorDictBase | None = None  # plan with these (an ensemble)
@@ -258,7 +258,7 @@ class RetimingPlanner(MPCPlannerBase):
         mask = root["action_mask"][0].bool()
         allowed = mask.reshape(-1, self.playbacks).any(-1).nonzero().squeeze(-1)
         seqs, explore = candidate_plans(future, last, allowed, self.horizon, self.advance, self.delay, self.in_order,
-                                        self.kept_delays)
+                                        self.departure.kept_delays)
         return self._actions(seqs)[0], explore
 
     def searches(self, root: TensorDictBase) -> bool:

@@ -481,6 +481,33 @@ def test_the_in_order_planner_never_says_a_prompt_where_its_driver_drops_it():
     assert action(Unaware([slow]), prepare_early=False) == Instruction.NONE
 
 
+def _sweep_drive(profile: DriverProfile, policy, seed: int):
+    """One drive of the timing sweep's approach (no traffic, the planner's context) by ``profile``."""
+    from pernav.env.sweep import sweep_route
+    from pernav.planner.factory import env_planning_config
+
+    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
+    config = {"n_traffic": 0, **env_planning_config({"kind": "retime", **options})}
+    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()}, config=config,
+                      seed=seed)
+    return drive(env, policy)
+
+
+def _true_planner(profile: DriverProfile, departure: dict | None = None):
+    """adapt_driver's planner on the simulated driver's own parameters; its cruise read from a drive of its own
+    (another seed), as the learner reads it."""
+    from pernav.planner.retiming import Departure, RetimingPlanner
+    from pernav.world.drivers import resolve
+
+    d = resolve(profile, Context())
+    cruise = read_response(_sweep_drive(profile, explore_module(), 10_000)).cruise
+    params = DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
+                          brake=d.comfort_decel, accel=d.comfort_accel, cruise=cruise)
+    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
+    return RetimingPlanner(DriverImaginedEnv([params]),
+                           departure=Departure(**{**DRIVER_PLANNER["departure"], **(departure or {})}), **options)
+
+
 @pytest.mark.slow
 def test_on_its_true_parameters_the_planner_does_not_prompt_a_very_quick_driver_early_where_best_shift_would_not():
     # One direction of "the planner on the true parameters chooses what best_shift chooses": on the timing sweep's
@@ -490,25 +517,15 @@ def test_on_its_true_parameters_the_planner_does_not_prompt_a_very_quick_driver_
     # tested: on this approach no driver's earlier best shift is told from explore's rule on every seed set.)
     import statistics
 
-    from pernav.env.sweep import sweep_route
-    from pernav.planner.factory import env_planning_config
-    from pernav.planner.retiming import Departure, RetimingPlanner, ShiftedExplore
+    from pernav.planner.retiming import ShiftedExplore
     from pernav.study.driver_rounds import SHIFTS
     from pernav.study.stats import paired_difference
     from pernav.trainer.collect import episode_metrics
-    from pernav.world.drivers import resolve
 
     profile = DriverProfile(reaction_time=0.5, speed_factor=0.8, decision_time=1.0, memory=8.0, comfort_decel=5.0)
-    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
-    config = {"n_traffic": 0, **env_planning_config({"kind": "retime", **options})}
-
-    def trajectory(policy, seed: int):
-        env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()}, config=config,
-                          seed=seed)
-        return drive(env, policy)
 
     def run(policy, seed: int) -> dict:
-        return episode_metrics(trajectory(policy, seed))
+        return episode_metrics(_sweep_drive(profile, policy, seed))
 
     seeds = range(8)
     cost = {k: [run(ShiftedExplore(k), s)["tracking_cost"] for s in seeds] for k in SHIFTS}
@@ -516,13 +533,7 @@ def test_on_its_true_parameters_the_planner_does_not_prompt_a_very_quick_driver_
         assert paired_difference(cost[k], cost[0])["low"] > 0.0
     best = min(SHIFTS, key=lambda k: statistics.mean(cost[k]))
     assert best < 2
-    d = resolve(profile, Context())
-    # the cruise read from a drive of its own (another seed), as the learner reads it; the rest is the simulated driver's
-    cruise = read_response(trajectory(explore_module(), 10_000)).cruise
-    params = DriverParams(reaction_time=d.reaction_time, decision_time=d.decision_time, turn_speed=d.turn_speed,
-                          brake=d.comfort_decel, accel=d.comfort_accel, cruise=cruise)
-    planner = RetimingPlanner(DriverImaginedEnv([params]), departure=Departure(**DRIVER_PLANNER["departure"]),
-                              **options)
+    planner = _true_planner(profile)
     planned = [run(planner, s) for s in seeds]
     explore = [run(explore_module(), s) for s in seeds]
     leads = [p["turn_lead"] - e["turn_lead"] for p, e in zip(planned, explore, strict=True)]
@@ -535,27 +546,11 @@ def test_with_kept_delays_the_planner_says_the_prepare_it_holds_back_before_expl
     # "prepare" back, imagining it still to come; explore says it only over a window of distance, so after three
     # delays it is gone from explore's plan and the "turn" is said alone. With kept_delays a delay is a candidate only
     # where explore still says the delayed prompt then, so the "prepare" is said before the "turn".
-    from pernav.env.sweep import sweep_route
-    from pernav.planner.factory import env_planning_config
-    from pernav.planner.retiming import Departure, RetimingPlanner
-
     profile = DriverProfile(reaction_time=0.6, decision_time=1.5)
-    options = {k: v for k, v in DRIVER_PLANNER.items() if k != "departure"}
-    config = {"n_traffic": 0, **env_planning_config({"kind": "retime", **options})}
-
-    def actions(policy, seed: int) -> list[int]:
-        env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()}, config=config,
-                          seed=seed)
-        return drive(env, policy)["action"].reshape(-1).tolist()
-
-    cruise = read_response(drive(history_env("Town1", {"route": sweep_route(), "user": profile, "context": Context()},
-                                             config=config, seed=10_000), explore_module())).cruise
-    params = DriverParams(reaction_time=0.6, decision_time=1.5, turn_speed=6.5, brake=3.2, accel=1.8, cruise=cruise)
 
     def first_prompts(kept_delays: bool) -> list[int]:
-        departure = Departure(**{**DRIVER_PLANNER["departure"], "kept_delays": kept_delays})
-        planner = RetimingPlanner(DriverImaginedEnv([params]), departure=departure, **options)
-        said = [a for a in actions(planner, 11) if a != Instruction.NONE]
+        planner = _true_planner(profile, {"kept_delays": kept_delays})
+        said = [a for a in _sweep_drive(profile, planner, 11)["action"].reshape(-1).tolist() if a != Instruction.NONE]
         return said[:2]
 
     assert first_prompts(False) == [Instruction.TURN_RIGHT] * 2  # the "prepare" was never said
