@@ -46,10 +46,10 @@ from pernav.learners.belief import DT, AnswerDetector, BeliefTracker
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.retiming import Departure, RetimingPlanner
-from pernav.world.constants import TURNS
+from pernav.world.constants import AUDIO_DURATION, PREPARES, TURNS
 
 __all__ = ["DriverBelief", "DriverPlanner", "DriverPrior", "DriverTracker", "Evidence", "Response", "adapt_phi",
-           "meta_loss", "meta_train", "read_response", "tau_loss"]
+           "meta_loss", "meta_train", "prepare_shares", "read_prepared", "read_response", "tau_loss"]
 
 MIN_SD = 0.05  # the smallest spread of P or of an estimate (log s; s): never certain
 CRUISE_QUANTILE = 0.9  # the share of a drive's frames slower than the cruise read from it
@@ -57,6 +57,8 @@ NEAR_JUNCTION = 8.0  # m: a "turn" step this close to its junction drives at the
 APPROACH = 80.0  # m: a "turn" step's braking this close to its junction is braking for the turn
 MOVING = 0.5  # m/s, m/s^2: slower frames (stopped at a line, in a queue) and weaker pedals say nothing of the driver
 NEWTON_HALVINGS = 8  # U halves its step at most this often before it keeps the start
+PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read
+MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 
 
 @dataclass
@@ -127,17 +129,21 @@ class Response:
     turn_speed: float = 5.0
     brake: float = 2.0
     accel: float = 1.5
+    prepared: float = 0.75  # the share of its cruise it drives at after a "prepare" (:func:`read_prepared`)
 
     def to_dict(self) -> dict[str, float]:
         return {k: round(float(v), 3) for k, v in self.__dict__.items()}
 
 
-def read_response(trajectory: TensorDictBase, default: Response = Response()) -> Response:
+def read_response(trajectory: TensorDictBase, default: Response = Response(), reaction: float | None = None
+                  ) -> Response:
     """The driver's speeds in ``trajectory`` (a drive: ``"action"``, ``"distance_to_junction"`` and the
     ``("next", "frames")`` the car's sensors gave): its cruise (a high quantile of its speeds), its turn speed (the
     median speed of the "turn" steps within :data:`NEAR_JUNCTION` of their junction), its braking for a turn (the
     median deceleration of the "turn" steps within :data:`APPROACH`) and its acceleration (the median of its
-    accelerating frames); ``default``'s where the drive shows none (no turn, never braked).
+    accelerating frames); ``default``'s where the drive shows none (no turn, never braked). Given the driver's mean
+    ``reaction`` time as known before the drive, also the share of its cruise it drives at after a "prepare"
+    (:func:`read_prepared`; else ``default``'s).
 
     >>> from tensordict import TensorDict
     >>> frames = torch.zeros(3, 10, 5); frames[..., 0] = torch.tensor([12.0, 9.0, 4.0])[:, None]
@@ -161,10 +167,63 @@ def read_response(trajectory: TensorDictBase, default: Response = Response()) ->
     near = frames[turn & (dj <= NEAR_JUNCTION)][..., speed].reshape(-1)
     braking = -frames[turn & (dj <= APPROACH)][..., acc].reshape(-1)
     rising = frames[..., acc].reshape(-1)
-    return Response(cruise=float(frames[..., speed].reshape(-1).quantile(CRUISE_QUANTILE)),
+    cruise = float(frames[..., speed].reshape(-1).quantile(CRUISE_QUANTILE))
+    return Response(cruise=cruise,
                     turn_speed=median(near[near > MOVING], default.turn_speed),
                     brake=median(braking[braking > MOVING], default.brake),
-                    accel=median(rising[rising > MOVING], default.accel))
+                    accel=median(rising[rising > MOVING], default.accel),
+                    prepared=default.prepared if reaction is None else read_prepared(trajectory, reaction, cruise,
+                                                                                     default.prepared))
+
+
+def prepare_shares(speed: torch.Tensor, times: torch.Tensor, effects: list[float], ends: list[float], cruise: float
+                   ) -> list[float]:
+    """For each "prepare" that took effect at ``effects[i]`` (s) and whose "turn" was said at ``ends[i]``, the median
+    of the car's ``speed`` (frames at ``times``) from its effect until then (at most :data:`PREPARE_WINDOW` s), over
+    the driver's ``cruise``, at most 1. The median of the window, not its least speed: the braking for the junction
+    that begins within it is the approach's, not the prompt's (a driver that does not slow on a "prepare" reads 1).
+    A "prepare" heard at under :data:`MOVING_AT` m/s or with under three frames to read says nothing.
+
+    >>> t = torch.arange(1, 101) / 10.0; v = torch.where(t < 3.0, 10.0, 8.0)
+    >>> prepare_shares(v, t, [2.0, 9.5], [8.0, 9.6], cruise=10.0)  # the second: two frames, too few
+    [0.8]
+    """
+    shares = []
+    for effect, end in zip(effects, ends, strict=True):
+        window = (times >= effect) & (times <= min(end, effect + PREPARE_WINDOW))
+        start = speed[int(torch.argmin((times - effect).abs()))]
+        if int(window.sum()) >= 3 and float(start) > MOVING_AT:
+            shares.append(round(min(float(speed[window].median()) / max(cruise, MOVING), 1.0), 6))
+    return shares
+
+
+def read_prepared(trajectory: TensorDictBase, reaction: float, cruise: float, default: float) -> float:
+    """The share of its ``cruise`` a driver drives at after a "prepare" in ``trajectory`` (a drive: ``"action"`` and
+    the ``("next", "frames")``), each "prepare" said (not held) taken to act its audio plus ``reaction`` s later (the
+    driver's mean reaction time as known before the drive) until its "turn" is said (:func:`prepare_shares`); their
+    mean, shrunk toward ``default`` (``P``'s, fitted offline) by one prepare's weight.
+
+    >>> from tensordict import TensorDict
+    >>> frames = torch.full((8, 10, 5), 10.0); frames[3:, :, 0] = 6.0           # slows from 10 to 6 m/s
+    >>> tau = TensorDict({"action": torch.tensor([0, 4, 0, 0, 0, 0, 2, 0]), "next": {"frames": frames}}, [8])
+    >>> round(read_prepared(tau, reaction=1.0, cruise=10.0, default=0.8), 2)    # (0.6 + 0.8) / 2
+    0.7
+    """
+    frames = trajectory["next", "frames"].double()
+    if not frames.numel():
+        return default
+    T, F = frames.shape[:2]
+    speed = frames[..., FRAME_KEYS.index("speed")].reshape(-1)
+    times = (torch.arange(T, dtype=torch.float64).reshape(T, 1) + torch.arange(1, F + 1) / F).reshape(-1)
+    action = trajectory["action"].reshape(-1).long().tolist()
+    prepares, turns = {int(p) for p in PREPARES}, {int(t) for t in TURNS}
+    effects, ends = [], []
+    for t, a in enumerate(action):
+        if a in prepares and not (t > 0 and action[t - 1] == a):  # a held prompt is not said again
+            effects.append(t + AUDIO_DURATION[a] + reaction)
+            ends.append(next((float(u) for u in range(t + 1, T) if action[u] in turns), math.inf))
+    shares = prepare_shares(speed, times, effects, ends, cruise)
+    return (sum(shares) + default) / (len(shares) + 1)
 
 
 @dataclass(frozen=True)
@@ -197,7 +256,7 @@ class DriverPrior:
 
     def speeds(self) -> Response:
         """The driver's speeds where its drives show none (:func:`read_response`'s default)."""
-        return Response(turn_speed=self.turn_speed, brake=self.brake)
+        return Response(turn_speed=self.turn_speed, brake=self.brake, prepared=self.prepared)
 
     def centre(self) -> torch.Tensor:
         return torch.tensor(self.mean, dtype=torch.float64)
@@ -434,11 +493,11 @@ class DriverBelief:
 
     def drivers(self) -> list[DriverParams]:
         """The imagination's driver row: the estimate, one prompt's spread widened by the estimate's own (the
-        predictive reaction time), the speeds read from the driver's drives, ``P``'s slowing on a "prepare"."""
+        predictive reaction time), the speeds and the slowing on a "prepare" read from the driver's drives."""
         e, r = self.estimate, self.response
         sigma = math.sqrt(self.prior.sigma**2 + e.sd[0] ** 2)
         return [DriverParams(e.reaction_time, max(e.decision_time, 0.1), sigma, r.turn_speed, r.brake, r.cruise,
-                             prepared=self.prior.prepared, accel=r.accel)]
+                             prepared=r.prepared, accel=r.accel)]
 
     def formula(self) -> dict[str, Any]:
         """The belief's formula on this estimate (the ablation "planner replaced by the belief's formula"): explore's

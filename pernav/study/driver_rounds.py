@@ -28,6 +28,7 @@ from pernav.env.navigation import FRAME_KEYS
 from pernav.learners.answers import LabelledDrive
 from pernav.learners.belief import AnswerDetector, detectors, frame_series
 from pernav.learners.driver import (
+    CRUISE_QUANTILE,
     DriverBelief,
     DriverPrior,
     DriverTracker,
@@ -36,6 +37,7 @@ from pernav.learners.driver import (
     Response,
     meta_loss,
     meta_train,
+    prepare_shares,
     read_response,
 )
 from pernav.learners.outcomes import SwerveDetector
@@ -48,8 +50,6 @@ __all__ = ["DRIVER_METHODS", "DRIVER_PLANNER", "SHIFTS", "DriverState", "fit_dri
 DRIVER_METHODS = ("adapt_driver", "adapt_driver_static", "adapt_driver_prior", "adapt_driver_formula")
 #: the constant shifts (steps; > 0 earlier) best_shift chooses from: as far back as the env's plan reaches, 3 ahead
 SHIFTS = (-2, -1, 0, 1, 2, 3)
-PREPARE_WINDOW = 6.0  # s after a "prepare" took effect over which its slowing is read (offline)
-MOVING_AT = 3.0  # m/s: a "prepare" heard slower than this (queued, stopped) says nothing of its slowing
 #: adapt_driver's planner: the re-timing tree search both ways (earlier and later), leaving explore for the expected
 #: cost over the predictive reaction quantiles (a fifth of the rows must each see the gain) where waiting a step (the
 #: cheapest candidate that plays explore's action now) costs more; its fine choices keep explore's order (no "turn"
@@ -71,16 +71,18 @@ def _sigma(drives: list[LabelledDrive]) -> float:
 
 
 def _prepared(drives: list[LabelledDrive]) -> float:
-    """The share of its speed a driver slows to on a "prepare", averaged over the offline drives' prepares: the least
-    speed from when it took effect (labelled) until its "turn" took effect, at most :data:`PREPARE_WINDOW` s, over the
-    speed then; a "prepare" that never took effect (misheard, ignored) slows nothing."""
+    """The share of its cruise a driver drives at after a "prepare", averaged over the offline drives' prepares
+    (:func:`~pernav.learners.driver.prepare_shares`, as a round reads ``tau``, but from when each took effect, which
+    is labelled here); a "prepare" that never took effect (misheard, ignored) slows nothing."""
     prepares, turns = [int(p) for p in PREPARES], [int(t) for t in TURNS]
-    shares = []
+    shares: list[float] = []
     for d in drives:
         series, times = frame_series(torch.from_numpy(np.stack([s["frames"] for s in d.steps])),
                                      torch.tensor([s["time"] for s in d.steps]))
         speed = series[:, FRAME_KEYS.index("speed")]
+        cruise = float(speed.quantile(CRUISE_QUANTILE))
         played = [s for s in d.steps if s["played"]]
+        effects, ends = [], []
         for i, step in enumerate(played):
             if step["instruction"] not in prepares:
                 continue
@@ -88,12 +90,10 @@ def _prepared(drives: list[LabelledDrive]) -> float:
             if effect is None:
                 shares.append(1.0)
                 continue
-            turn = next((d.took_effect.get(q["prompt_end"]) for q in played[i + 1:] if q["instruction"] in turns), None)
-            end = min(turn if turn is not None else math.inf, effect + PREPARE_WINDOW)
-            window = (times >= effect) & (times <= end)
-            start = speed[int(torch.argmin((times - effect).abs()))]
-            if int(window.sum()) >= 3 and float(start) > MOVING_AT:
-                shares.append(float(speed[window].min() / start))
+            # the "turn" is said at its step's start, a second before that step's end
+            effects.append(effect)
+            ends.append(next((q["time"] - 1.0 for q in played[i + 1:] if q["instruction"] in turns), math.inf))
+        shares += prepare_shares(speed.double(), times.double(), effects, ends, cruise)
     return sum(shares) / len(shares) if shares else DriverParams().prepared
 
 
@@ -154,7 +154,11 @@ class DriverState:
     def read_tau(self, user: str, label: str, tau: Any, methods: list[str]) -> dict[str, DriverTracker]:
         """Each method's tracker for the round's episodes: ``U`` on ``tau`` from this user's estimate so far (the
         meta model's centre on a first drive), and the evidence ``tau`` gave (kept for the meta update)."""
-        response = read_response(tau, self.prior("adapt_driver").speeds())
+        # the slowing on a "prepare" is read with the reaction time known before this drive (this user's estimate so far,
+        # else P's centre): tau's own answers are what U then reads
+        saved = self.data["estimates"].get("adapt_driver", {}).get(user)
+        known = Estimate(**saved).reaction_time if saved else self.prior("adapt_driver").reaction_time
+        response = read_response(tau, self.prior("adapt_driver").speeds(), reaction=known)
         chains = {"adapt_driver_prior" if m == "adapt_driver_prior" else "adapt_driver"
                   for m in methods if m != "adapt_driver_static"}
         estimates: dict[str, Estimate] = {}

@@ -301,25 +301,47 @@ def test_a_prompt_of_the_side_the_route_does_not_turn_to_does_not_take_the_route
 
 def _prepare_drive(slowed_to: float | None) -> LabelledDrive:
     """A constructed drive: a "prepare" played at 2 s (its audio ends at 3.9 s) that took effect at 5 s, after which
-    the car slows from 10 m/s to ``slowed_to`` (``None``: it never took effect), then a "turn" (played at 6 s)
-    taking effect at 9 s."""
+    the car slows from 10 m/s to ``slowed_to`` at 1 m/s^2 (``None``: it never took effect), then a "turn" (played at
+    10 s) taking effect at 13 s, before which the car brakes for the junction."""
     import numpy as np
 
     steps = []
-    for k in range(12):
+    for k in range(16):
         frames = np.zeros((10, 5), dtype=np.float32)
         t = k + (np.arange(10) + 1) / 10  # the frames' times: the step ends at k + 1
         frames[:, 0] = np.where((t > 5.0) & (slowed_to is not None), np.maximum(10.0 - (t - 5.0), slowed_to or 0), 10.0)
-        instruction = 3 if 2 <= k < 6 else (1 if k >= 6 else 0)
-        steps.append({"instruction": instruction, "played": k in (2, 6), "prompt_start": float(k),
+        frames[:, 0] = np.where(t > 10.0, np.maximum(frames[:, 0] - 2.0 * (t - 10.0), 2.0), frames[:, 0])
+        instruction = 3 if 2 <= k < 10 else (1 if k >= 10 else 0)
+        steps.append({"instruction": instruction, "played": k in (2, 10), "prompt_start": float(k),
                       "prompt_end": float(k) + 1.9, "frames": frames, "time": float(k + 1), "junction": 50.0,
                       "missed": 0, "swerve": False})
-    return LabelledDrive([], [], 1.0, 2.0, steps, {3.9: None if slowed_to is None else 5.0, 7.9: 9.0})
+    return LabelledDrive([], [], 1.0, 2.0, steps, {3.9: None if slowed_to is None else 5.0, 11.9: 13.0})
 
 
 def test_the_slowing_on_a_prepare_is_read_from_the_labelled_drives_and_an_unheard_one_slows_nothing():
+    # the median speed from the prepare's effect until its "turn" is said, over the cruise: the braking for the
+    # junction after the "turn" is not the prepare's
     assert _prepared([_prepare_drive(8.0)]) == pytest.approx(0.8)
     assert _prepared([_prepare_drive(8.0), _prepare_drive(None)]) == pytest.approx(0.9)
+    assert _prepared([_prepare_drive(10.0)]) == pytest.approx(1.0)
+
+
+def test_a_driver_that_holds_its_speed_after_a_prepare_reads_as_not_slowing_on_it():
+    from tensordict import TensorDict
+
+    from pernav.learners.driver import read_prepared
+
+    def tau(slowed_to: float) -> TensorDict:
+        frames = torch.full((16, 10, 5), 10.0)
+        t = torch.arange(16.0).reshape(16, 1) + torch.arange(1, 11) / 10
+        frames[..., 0] = torch.where(t > 5.0, torch.clamp(10.0 - 3.0 * (t - 5.0), min=slowed_to), 10.0)
+        frames[..., 0] = torch.where(t > 10.0, torch.clamp(frames[..., 0] - 2.0 * (t - 10.0), min=2.0), frames[..., 0])
+        action = torch.tensor([0, 0, 3, 3, 3, 3, 3, 3, 3, 3, 1, 1, 1, 1, 1, 1])
+        return TensorDict({"action": action, "next": {"frames": frames}}, [16])
+
+    # a "prepare" said at 2 s (audio 1.9 s) acted on 1.1 s later; the "turn" said at 10 s; shrunk toward 0.85 by one
+    held, slowed = (read_prepared(tau(v), reaction=1.1, cruise=10.0, default=0.85) for v in (10.0, 7.0))
+    assert held == pytest.approx((1.0 + 0.85) / 2) and slowed == pytest.approx((0.7 + 0.85) / 2)
 
 
 @pytest.mark.slow

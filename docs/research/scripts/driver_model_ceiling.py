@@ -35,7 +35,7 @@ import torch
 from pernav.diagnostics.model_check import DELAY, STEPS, approach_divergences, driver_env
 from pernav.diagnostics.panel import PANEL
 from pernav.env.torchrl_env import explore_module
-from pernav.learners.driver import read_response
+from pernav.learners.driver import read_prepared, read_response
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.trainer.collect import drive
 from pernav.world.drivers import Context, DriverProfile, named_user, resolve
@@ -70,13 +70,17 @@ def main() -> None:
     ap.add_argument("--json", default=None)
     ap.add_argument("--prepared", type=float, default=DriverParams().prepared,
                     help="the tau_speeds row's share of its speed a driver slows to on a prepare")
+    ap.add_argument("--reaction", type=float, default=1.3,
+                    help="the tau_prepared row's reaction time for reading the slowing on a prepare from tau (about "
+                         "P's centre, as a first drive reads it)")
     ap.add_argument("--no-grid", action="store_true", help="skip best_response (its grid is most of the time)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     pooled: dict[str, list] = {}
     rows = {}
     for driver, (user, context) in PANEL.items():
-        seen = read_response(drive(driver_env(driver, args.town, 7, 77, K), explore_module()))  # the diagnostic's tau
+        tau = drive(driver_env(driver, args.town, 7, 77, K), explore_module())  # the diagnostic's tau
+        seen = read_response(tau)
         cruise = seen.cruise
         own = true_params(user, context, cruise)
         speeds = dataclasses.replace(own, turn_speed=seen.turn_speed, brake=seen.brake, accel=seen.accel,
@@ -84,7 +88,8 @@ def main() -> None:
         # every candidate is a model of the diagnostic's own loop: the same states, seeds and truth
         grid = [] if args.no_grid else [dataclasses.replace(own, **dict(zip(GRID, v, strict=True)))
                                         for v in itertools.product(*GRID.values())]
-        models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds,
+        tau_prepared = dataclasses.replace(speeds, prepared=read_prepared(tau, args.reaction, cruise, args.prepared))
+        models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds, "tau_prepared": tau_prepared,
                   **{f"grid{i}": p for i, p in enumerate(grid)}}
         div = approach_divergences(driver, args.town, {k: (DriverImaginedEnv([p]), None) for k, p in models.items()},
                                    K=K, ceiling=args.ceiling)
@@ -92,6 +97,7 @@ def main() -> None:
         if not len(true):
             continue
         preds = {"prior": div["prior"], "true_params": div["true_params"], "tau_speeds": div["tau_speeds"],
+                 "tau_prepared": div["tau_prepared"],
                  **({"ceiling": div["ceiling"]} if args.ceiling else {})}
         best = None
         if grid:
@@ -102,7 +108,7 @@ def main() -> None:
         for k, v in preds.items():
             pooled.setdefault(k, []).append(v)
         rows[driver] = {"states": len(true), "true_mean": [round(float(x), 2) for x in true.mean(0)],
-                        "cruise": round(cruise, 2), "read_from_tau": seen.to_dict(),
+                        "cruise": round(cruise, 2), "read_from_tau": {**seen.to_dict(), "prepared": round(tau_prepared.prepared, 3)},
                         **({"best_response_params": {k: getattr(best, k) for k in GRID}} if best else {}),
                         **{k: figures(true, v) for k, v in preds.items()}}
         print(driver, json.dumps(rows[driver]), flush=True)
