@@ -108,7 +108,8 @@ def main() -> None:
         for k, v in preds.items():
             pooled.setdefault(k, []).append(v)
         rows[driver] = {"states": len(true), "true_mean": [round(float(x), 2) for x in true.mean(0)],
-                        "cruise": round(cruise, 2), "read_from_tau": {**seen.to_dict(), "prepared": round(tau_prepared.prepared, 3)},
+                        "cruise": round(cruise, 2),
+                        "read_from_tau": {**seen.to_dict(), "prepared": round(tau_prepared.prepared, 3)},
                         **({"best_response_params": {k: getattr(best, k) for k in GRID}} if best else {}),
                         **{k: figures(true, v) for k, v in preds.items()}}
         print(driver, json.dumps(rows[driver]), flush=True)
