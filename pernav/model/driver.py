@@ -129,14 +129,35 @@ def _audio(actions: torch.Tensor) -> torch.Tensor:
     return table[actions.long().clamp(0, N_INSTRUCTIONS - 1)]
 
 
+def _arc(route: torch.Tensor) -> torch.Tensor:
+    """``[P]``: the arc length of each point of ``route`` from its first. The env's points are the route's waypoints
+    nearest to every ``ROUTE_SPACING`` m, so they lie 2 or 4 m apart, not 3: positions are read along the polyline
+    itself, not from a uniform spacing (which made an imagined car at a constant speed move 8 and 10 m in turn)."""
+    return torch.cat([route.new_zeros(1), (route[1:] - route[:-1]).norm(dim=-1).cumsum(0)])
+
+
 def _route_at(route: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
-    """Points ``[..., 2]`` at arc length ``s`` ``[...]`` (m from the car's projection) along a ``[P, 2]`` polyline of
-    points ``ROUTE_SPACING`` apart (linear between them; past the end it goes on straight)."""
+    """Points ``[..., 2]`` at arc length ``s`` ``[...]`` (m from the car's projection, the point ``HERE``) along a
+    ``[P, 2]`` polyline (linear between its points; past the end it goes on straight, and stays where the route's
+    last points repeat).
+
+    >>> route = torch.tensor([[0.0, 0.0], [2.0, 0.0], [6.0, 0.0], [8.0, 0.0], [12.0, 0.0], [14.0, 0.0], [18.0, 0.0]])
+    >>> _route_at(route, torch.tensor([0.0, 3.0, 6.0]))[:, 0].tolist()   # HERE is the sixth point, at 14 m
+    [14.0, 17.0, 20.0]
+    """
     P = route.shape[0]
-    u = (s / ROUTE_SPACING + HERE).clamp(min=0.0)
-    i = u.floor().long().clamp(max=P - 2)
-    frac = (u - i.to(u.dtype)).unsqueeze(-1)
+    arc = _arc(route)
+    a = (arc[min(HERE, P - 1)] + s).clamp(min=0.0)
+    i = (torch.searchsorted(arc, a.contiguous(), right=True) - 1).clamp(0, P - 2)
+    length = arc[i + 1] - arc[i]
+    frac = torch.where(length > 0, (a - arc[i]) / length.clamp(min=1e-9), torch.zeros_like(a)).unsqueeze(-1)
     return route[i] + frac * (route[i + 1] - route[i])
+
+
+def _end(route: torch.Tensor) -> float:
+    """The arc length (m from the car's projection) of the route's last point."""
+    arc = _arc(route)
+    return float(arc[-1] - arc[min(HERE, route.shape[0] - 1)])
 
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float,
@@ -216,7 +237,7 @@ def _goes_straight(route: torch.Tensor, s_junction: float) -> bool:
 def _next_turn(route: torch.Tensor, s_from: float) -> float:
     """The arc length of the first point past ``s_from`` where the route turns (by :data:`STRAIGHT_DEG` or more over
     a junction's length), or :data:`FAR` if it goes straight to the end of ``route``."""
-    s_end = (route.shape[0] - 1 - HERE) * ROUTE_SPACING - JUNCTION_SPAN
+    s_end = _end(route) - JUNCTION_SPAN
     if s_from + ROUTE_SPACING >= s_end:  # the junction ahead is at the end of what the route shows
         return FAR
     s = torch.arange(s_from + ROUTE_SPACING, s_end, ROUTE_SPACING, dtype=torch.float64)

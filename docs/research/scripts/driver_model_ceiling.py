@@ -14,6 +14,9 @@ same episodes, seeds and pairs: it runs ``approach_divergences`` itself) and mea
   diagnostic's explore drive (``read_response``: cruise, turn speed, braking, acceleration), as at round time, with
   ``--prepared`` the slowing on a "prepare" (adapt_driver's offline phase fits it: 0.85-0.87 on 24 population drivers
   of Town1; the default is the model's own assumption);
+* ``tau_prepared``: ``tau_speeds`` with the share of its cruise the driver drives at after a "prepare" read from the
+  diagnostic's explore drive as ``adapt_driver`` reads it (:func:`~pernav.learners.driver.read_prepared`, with
+  ``--reaction`` the reaction time known before the drive, shrunk toward ``--prepared``);
 * ``best_response``: ``true_params`` with each driver's response to a prompt (the share of its cruise it slows to on a
   "prepare", its braking and its acceleration) chosen on a grid to fit *that driver's own diagnostic states* (the
   least squared error of the divergences). It reads the judge's truth, so it is an upper bound on what adapting those
