@@ -568,7 +568,7 @@ def test_on_the_quick_profiles_approach_the_planner_says_the_prepare_before_the_
     # route_ahead's own arc length (its points lie 2 or 4 m apart, not 3), the planner imagined gains of 15-22 from
     # holding explore's "prepare" back, three decisions in a row, until explore no longer said it: on seed 11 the
     # driver heard the "turn" alone (kept_delays was built for that). With the positions read right the phantom gain
-    # is gone: the "prepare" is said first either way.
+    # is gone: the "prepare" is said first either way (on seeds 8-19 too: docs/adapt_driver.md).
     profile = DriverProfile(reaction_time=0.6, decision_time=1.5)
 
     def first_prompts(kept_delays: bool, seed: int) -> list[int]:
@@ -576,6 +576,5 @@ def test_on_the_quick_profiles_approach_the_planner_says_the_prepare_before_the_
         said = [a for a in _sweep_drive(profile, planner, seed)["action"].reshape(-1).tolist() if a != Instruction.NONE]
         return said[:2]
 
-    for seed in (11, 12):
-        for kept in (False, True):
-            assert first_prompts(kept, seed)[0] == Instruction.PREPARE_RIGHT, (seed, kept)
+    for kept in (False, True):
+        assert first_prompts(kept, 11)[0] == Instruction.PREPARE_RIGHT, kept
