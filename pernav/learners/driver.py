@@ -42,7 +42,7 @@ from tensordict.nn import TensorDictModuleBase
 
 from pernav.env.navigation import FRAME_KEYS
 from pernav.env.policies import explore_policy
-from pernav.learners.belief import DT, AnswerDetector, BeliefTracker
+from pernav.learners.belief import DT, AnswerDetector, BeliefTracker, frame_series
 from pernav.learners.outcomes import DECISION_GRID, SwerveDetector
 from pernav.model.driver import DriverImaginedEnv, DriverParams
 from pernav.planner.retiming import Departure, RetimingPlanner
@@ -209,12 +209,12 @@ def read_prepared(trajectory: TensorDictBase, reaction: float, cruise: float, de
     >>> round(read_prepared(tau, reaction=1.0, cruise=10.0, default=0.8), 2)    # (0.6 + 0.8) / 2
     0.7
     """
-    frames = trajectory["next", "frames"].double()
+    frames = trajectory["next", "frames"]
     if not frames.numel():
         return default
-    T, F = frames.shape[:2]
-    speed = frames[..., FRAME_KEYS.index("speed")].reshape(-1)
-    times = (torch.arange(T, dtype=torch.float64).reshape(T, 1) + torch.arange(1, F + 1) / F).reshape(-1)
+    T = frames.shape[0]
+    series, times = frame_series(frames, torch.arange(1.0, T + 1))  # step t starts at t s: its prompt is said then
+    speed = series[:, FRAME_KEYS.index("speed")]
     action = trajectory["action"].reshape(-1).long().tolist()
     prepares, turns = {int(p) for p in PREPARES}, {int(t) for t in TURNS}
     effects, ends = [], []

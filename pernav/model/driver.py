@@ -206,13 +206,11 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
 def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The junction's point on the route, and the unit directions the route comes in by and leaves by."""
     s_j = min(s_junction, 1e4)
-
-    def at(x: float) -> torch.Tensor:
-        return _route_at(route, torch.tensor(x, dtype=torch.float64))
-
-    junction = at(s_j)
-    into = junction - at(max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND))
-    out = at(s_j + JUNCTION_ARC + JUNCTION_SPAN) - at(s_j + JUNCTION_ARC)
+    # the four points in one read of the route (each read measures the polyline's arc length)
+    junction, behind, leaving, left = _route_at(route, torch.tensor(
+        [s_j, max(s_j - JUNCTION_SPAN, -ROUTE_BEHIND), s_j + JUNCTION_ARC, s_j + JUNCTION_ARC + JUNCTION_SPAN],
+        dtype=route.dtype))
+    into, out = junction - behind, left - leaving
     return junction, into / into.norm().clamp(min=1e-6), out / out.norm().clamp(min=1e-6)
 
 
@@ -250,11 +248,8 @@ def _next_turn(route: torch.Tensor, s_from: float) -> float:
 
 def _bend(route: torch.Tensor, a: float, b: float) -> float:
     """The route's heading change from arc length ``a`` to ``b`` (degrees, counter-clockwise positive in its (x, y))."""
-    def heading(x: float) -> torch.Tensor:
-        return _route_at(route, torch.tensor(x + 1.0, dtype=torch.float64)) - \
-            _route_at(route, torch.tensor(x - 1.0, dtype=torch.float64))
-
-    h1, h2 = heading(a), heading(b)
+    p = _route_at(route, torch.tensor([a - 1.0, a + 1.0, b - 1.0, b + 1.0], dtype=route.dtype))
+    h1, h2 = p[1] - p[0], p[3] - p[2]
     return math.degrees(math.atan2(float(h1[0] * h2[1] - h1[1] * h2[0]), float((h1 * h2).sum())))
 
 
