@@ -93,12 +93,13 @@ def per_driver_model(driver: str, town: str, like: DynamicsModel) -> DynamicsMod
     return model
 
 
-def approach_pairs(driver: str, town: str, episodes: int = 2, K: int = 10
+def approach_pairs(driver: str, town: str, episodes: int = 2, K: int = 10, first: int = 0
                    ) -> Iterator[tuple[TensorDictBase, Any, int, torch.Tensor]]:
-    """The diagnostic's approach states of the panel ``driver`` (explore's episodes, seeds ``900 + ep``): at each step
+    """The diagnostic's approach states of the panel ``driver`` (explore's episodes ``first ...``, route ``ep`` with
+    seed ``900 + ep``; the diagnostic's own are ``first=0``, a structure check's held-out ones later): at each step
     where a prompt of explore's plan is due within 1-4 steps, ``(root, live navigation env, step, pair)``, ``pair``
     ``[2, max(STEPS)]`` the plan's next prompts now and the same :data:`DELAY` s later."""
-    for ep in range(episodes):
+    for ep in range(first, first + episodes):
         env = driver_env(driver, town, ep, 900 + ep, K)
         td = env.reset()
         nav = navigation_of(env)
@@ -121,13 +122,14 @@ def divergence(pos: torch.Tensor) -> np.ndarray:
     return (pos[:, 0] - pos[:, 1]).norm(dim=-1).mean(0)[[s - 1 for s in STEPS]].numpy()
 
 
-def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2, K: int = 10, ceiling: int = 0
-                         ) -> dict[str, np.ndarray]:
+def approach_divergences(driver: str, town: str, models: dict, episodes: int = 2, K: int = 10, ceiling: int = 0,
+                         first: int = 0) -> dict[str, np.ndarray]:
     """``{name: [n_states, len(STEPS)]}`` position divergences (``true`` and each model's; a model is an env with
-    ``imagine`` and its parameters, ``None``: its own), from the history env of window ``K``; with ``ceiling``, also
-    the true simulator's mean over that many fresh samples (``"ceiling"``)."""
+    ``imagine`` and its parameters, ``None``: its own), from the history env of window ``K`` at
+    :func:`approach_pairs`'s states (``first``: its first episode); with ``ceiling``, also the true simulator's mean
+    over that many fresh samples (``"ceiling"``)."""
     out: dict[str, list] = {"true": [], **({"ceiling": []} if ceiling else {}), **{k: [] for k in models}}
-    for td, nav, t, pair in approach_pairs(driver, town, episodes, K):
+    for td, nav, t, pair in approach_pairs(driver, town, episodes, K, first):
         out["true"].append(divergence(TrueDynamicsEnv(nav, samples=2, seed=t).imagine(td, pair)[0]))
         if ceiling:  # the simulator's own mean over ``ceiling`` fresh samples: what r can reach
             out["ceiling"].append(divergence(TrueDynamicsEnv(nav, samples=ceiling, seed=10_000 + t).imagine(td, pair)[0]))

@@ -21,8 +21,8 @@ traffic):
 * the driver commits to a branch ``D`` seconds (its decision time, at least 4 m) before the next decision junction, at
   its speed then (the moment interpolated between the imagination's steps): if no "turn" is in effect then, the car
   goes straight through the junction (a missed turn), else it follows the route; a "turn" that takes effect after the
-  commit but before the car reaches the junction is swerved into where the car can still slow to its turn speed by the
-  junction, braking hard (else it goes straight on: a turn is not driven at speed); a "prepare" heard without its
+  commit but before the car reaches the junction is swerved into, the car braking hard for it from then on (however
+  fast it is: a late "turn" is yanked into, not given up; seventeenth session); a "prepare" heard without its
   "turn" chooses the branch in half of the rows (a driver may not trust it alone); where the route goes straight
   through the junction ahead (read from its shape), the prompts are for the next point where it turns, a "turn" in
   effect at (or swerved into before) the junction it goes straight through is taken there (a wrong turn), and a "turn"
@@ -309,7 +309,6 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
     follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)
     reaction = R * torch.exp(sigma * z - sigma**2 / 2)  # [M, 1] this row's draw (mean R over draws)
-    v_turn, brake = drivers[:, 3].reshape(M, 1), drivers[:, 4].reshape(M, 1)
     state = hist[-1]
     v0 = float(torch.hypot(state[VX], state[VY]))
     # the prompts heard by the next junction; where the route goes straight through it, those said before the car
@@ -341,11 +340,9 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
             t = h + (k + 1) * dt
             # the driver commits D seconds before the junction at its speed then (a braking car commits later)
             commit_distance = torch.clamp(D * v, min=MIN_COMMIT)  # [M, N]
-            # the road the car needs to slow to its turn speed braking hard: a late "turn" is swerved into only with it
-            stopping = (v**2 - v_turn**2).clamp(min=0.0) / (2 * HARD_BRAKE * brake)
             for decision in (first, junction):
                 if decision is not None:
-                    decision.step(s, v, commit_distance, t - dt, dt, stopping)
+                    decision.step(s, v, commit_distance, t - dt, dt)
             taken = junction.chosen
             d = s_junction - s
             turning = (first_turn <= t) & taken
@@ -399,8 +396,8 @@ def dropped_prompts(root: TensorDictBase, sequences: torch.Tensor) -> torch.Tens
 class _Decision:
     """One junction's branch, as the driver chooses it: at its commit ``D`` s (at its speed then) before the junction
     ``at`` (m), from the "turn" (or followed "prepare") in effect then; with ``swerve``, a "turn" that takes effect
-    after the commit and before the car reaches the junction is swerved into where the car can still slow to its turn
-    speed by the junction, braking hard (else it goes on: no driver throws a car into a turn at speed). ``heard``:
+    after the commit and before the car reaches the junction is swerved into (the car then brakes hard for it,
+    :func:`_next_speed`). ``heard``:
     :func:`_effects` of the prompts for it; ``follow`` ``[M, 1]``: the rows where a "prepare" alone chooses.
     ``chosen`` ``[M, N]``: turned (with ``invert``: did not); its initial value where the junction was decided before
     the root (``decided``)."""
@@ -423,10 +420,8 @@ class _Decision:
         turn = ((self.turn_from <= at) & (at < self.turn_until)).any(-1)
         return turn | (self.prepared_by <= at[..., 0]) if prepare else turn
 
-    def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float,
-             stopping: torch.Tensor) -> None:
-        """The car, at ``s`` at time ``t`` at speed ``v`` (needing ``stopping`` m to slow to its turn speed braking
-        hard), moves on."""
+    def step(self, s: torch.Tensor, v: torch.Tensor, commit_distance: torch.Tensor, t: float, dt: float) -> None:
+        """The car, at ``s`` at time ``t`` at speed ``v``, moves on."""
         inside = (~self.committed) & (self.at - s <= commit_distance)
         if bool(inside.any()):
             chosen = self.turns_at(self.at - commit_distance, s, v, t, dt) ^ self.invert
@@ -434,9 +429,9 @@ class _Decision:
         self.committed = self.committed | inside
         if self.swerve:
             late = self.committed & ~self.reached & ~self.chosen  # committed to going on, not yet at the junction
-            if bool(late.any()):  # a "turn" in effect now, with room to slow for it: swerved into from here
-                now = self.turns_at(s, s, v, t, dt, prepare=False)
-                self.chosen = self.chosen | (late & now & (stopping <= self.at - s))
+            if bool(late.any()):  # a "turn" in effect now, or when it reached the junction: swerved into
+                now = self.turns_at(s.clamp(max=self.at), s, v, t, dt, prepare=False)
+                self.chosen = self.chosen | (late & now)
             self.reached = self.reached | (self.at - s <= 0)
 
 

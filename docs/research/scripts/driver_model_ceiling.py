@@ -77,6 +77,9 @@ def main() -> None:
                     help="the tau_prepared row's reaction time for reading the slowing on a prepare from tau (about "
                          "P's centre, as a first drive reads it)")
     ap.add_argument("--no-grid", action="store_true", help="skip best_response (its grid is most of the time)")
+    ap.add_argument("--first-episode", type=int, default=0,
+                    help="the first of the two panel episodes (0: the diagnostic's own states; 2: held-out ones, other "
+                         "routes and seeds, for checking a change found on the diagnostic's states)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     pooled: dict[str, list] = {}
@@ -95,7 +98,7 @@ def main() -> None:
         models = {"prior": DriverParams(), "true_params": own, "tau_speeds": speeds, "tau_prepared": tau_prepared,
                   **{f"grid{i}": p for i, p in enumerate(grid)}}
         div = approach_divergences(driver, args.town, {k: (DriverImaginedEnv([p]), None) for k, p in models.items()},
-                                   K=K, ceiling=args.ceiling)
+                                   K=K, ceiling=args.ceiling, first=args.first_episode)
         true = div["true"]
         if not len(true):
             continue
@@ -117,7 +120,8 @@ def main() -> None:
                         **{k: figures(true, v) for k, v in preds.items()}}
         print(driver, json.dumps(rows[driver]), flush=True)
     cat = {k: np.concatenate(v) for k, v in pooled.items()}
-    report = {"town": args.town, "steps": STEPS, "delay_s": DELAY, "ceiling_samples": args.ceiling,
+    report = {"town": args.town, "first_episode": args.first_episode, "steps": STEPS, "delay_s": DELAY,
+              "ceiling_samples": args.ceiling,
               "states": int(cat["true"].shape[0]), "drivers": rows,
               "pooled": {k: figures(cat["true"], v) for k, v in cat.items() if k != "true"}}
     print(json.dumps(report["pooled"], indent=1))
