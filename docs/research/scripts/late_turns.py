@@ -4,10 +4,13 @@ The sixteenth session's hybrid model swerved into a late "turn" (one in effect a
 on, before the junction) only where the car could still slow to its turn speed by the junction braking hard
 (``HARD_BRAKE`` x its braking); otherwise its car went on (a missed turn). Here the true simulator drives explore's
 prompts each said ``delay`` steps later (so that turns come late) for population drivers the diagnostic's panel does
-not hold, and every swerve and missed turn is counted; for each swerve, whether the car had that room at the start of
-its step (its speed and distance to the junction then; the driver's own turn speed and comfortable braking, read
-from the profile: a label of this offline check, never the model's input). Swerves without the room are late turns
-the old rule called misses.
+not hold, and every swerve and missed turn is counted. Swerves and misses after a "turn" in effect before the junction
+(for a miss, the moment the car reached it estimated from the step before: distance over speed) are split by whether
+the driver had committed (its decision time at its speed before the junction) and the car had that room when the
+"turn" took effect (the simulator's record of when a heard prompt acts; the car's
+speed and distance then, extrapolated from its step's start; the driver's own turn speed and comfortable braking from
+the profile: labels of this offline check, never the model's input). The old rule said "swerve" with the room and
+"miss" without; the seventeenth session's says "swerve" for every one of them.
 
     .venv/bin/python docs/research/scripts/late_turns.py --towns Town4 Town1 --delays 1 2 3 --drivers 8
 """
@@ -19,31 +22,59 @@ import json
 from collections import deque
 
 from pernav.env.navigation import NavigationEnv
+from pernav.world.constants import TURNS
 from pernav.world.drivers import population_samples, resolve
 
 HARD_BRAKE = 2.5  # the sixteenth session's model's multiple of the comfortable braking for a late turn
 
 
 def drive_counts(town: str, profile, context, route: int, seed: int, delay: int) -> dict:
-    """One drive of explore's prompts ``delay`` steps late: its swerves (with and without the room to slow) and
-    missed turns."""
+    """One drive of explore's prompts ``delay`` steps late: its swerves and missed turns, each after a "turn" in effect
+    before the junction split by whether the car had the room to slow to its turn speed braking hard at that moment."""
     env = NavigationEnv(town, config={"n_traffic": 2})
     _, info = env.reset(seed=seed, options={"route": route, "user": profile, "context": context})
     d = resolve(profile, context)
     said = deque([0] * delay)
-    counts = {"swerves": 0, "swerves_without_room": 0, "missed": 0, "swerve_speeds": []}
+    counts = {k: 0 for k in ("swerves", "missed", "missed_without_turn_in_effect", "swerved_in_time", "swerved_with_room",
+                             "swerved_without_room", "missed_in_time", "missed_with_room", "missed_without_room")}
+    ego, turns, steps = env.world.ego, [], []  # turns: (heard at, takes effect at) of every "turn" understood
+    hear = ego.hear
+
+    def recording_hear(instruction: int, playback: str, now: float) -> None:
+        before = list(ego.heard)
+        hear(instruction, playback, now)  # the same draws as unobserved: the drive is unchanged
+        turns.extend((h.heard_at, h.active_at) for h in ego.heard if h not in before and h.instruction in TURNS)
+
+    def room_at(moment: float) -> str:
+        """``in_time`` where the driver had not committed at ``moment`` (its decision time at its speed, at least 4 m,
+        before the junction), else ``with_room`` or ``without_room``: whether the car could slow to its turn speed
+        braking hard by the junction from then."""
+        t0, dist, v = next(((t, x, u) for t, x, u in reversed(steps) if t <= moment), steps[0])
+        left = dist - v * (moment - t0)
+        if left > max(d.decision_time * v, 4.0):
+            return "in_time"
+        return "with_room" if (v**2 - d.turn_speed**2) / (2 * HARD_BRAKE * d.comfort_decel) <= left else "without_room"
+
+    ego.hear = recording_hear
     swerves, missed, done = 0, 0, False
     while not done:
         said.append(int(info["explore_action"]))
-        v, dist = float(env.world.ego.speed), float(info["distance_to_junction"])
+        v, dist, now = float(ego.speed), float(info["distance_to_junction"]), float(info["time"])
+        steps.append((now, dist, v))
         _, _, terminated, truncated, info = env.step(said.popleft())
         done = terminated or truncated
-        if env.world.events.swerves > swerves:
-            room = (v**2 - d.turn_speed**2) / (2 * HARD_BRAKE * d.comfort_decel) <= dist
-            counts["swerves"] += 1
-            counts["swerves_without_room"] += int(not room)
-            counts["swerve_speeds"].append(round(v, 1))
-        counts["missed"] += int(info["missed_turns"]) - missed
+        for kind, happened in (("swerved", env.world.events.swerves > swerves),
+                               ("missed", int(info["missed_turns"]) > missed)):
+            if not happened:
+                continue
+            counts["swerves" if kind == "swerved" else "missed"] += 1
+            reach = now + 1.0 if kind == "swerved" else now + dist / max(v, 0.1)  # when the car reached it
+            heard = [a for h, a in turns if h < reach]
+            if heard and heard[-1] < reach:
+                key = f"{kind}_{room_at(heard[-1])}"
+                counts[key] = counts.get(key, 0) + 1
+            elif kind == "missed":
+                counts["missed_without_turn_in_effect"] += 1
         swerves, missed = env.world.events.swerves, int(info["missed_turns"])
     return counts
 
@@ -60,17 +91,13 @@ def main() -> None:
     out = {}
     for town in args.towns:
         for delay in args.delays:
-            total = {"swerves": 0, "swerves_without_room": 0, "missed": 0, "swerve_speeds": []}
+            total: dict[str, int] = {}
             for i, (profile, context) in enumerate(drivers):
                 for route in range(args.routes):
-                    c = drive_counts(town, profile, context, route, 600 + 10 * i + route, delay)
-                    for k in total:
-                        total[k] += c[k]
-            late = total["swerves"] + total["missed"]
-            total["late_turns"] = late
-            total["share_swerved_without_room"] = round(total["swerves_without_room"] / late, 3) if late else None
+                    for k, n in drive_counts(town, profile, context, route, 600 + 10 * i + route, delay).items():
+                        total[k] = total.get(k, 0) + n
             out[f"{town} delay {delay}"] = total
-            print(town, delay, json.dumps({k: v for k, v in total.items() if k != "swerve_speeds"}), flush=True)
+            print(town, delay, json.dumps(total), flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"drivers": args.drivers, "routes": args.routes, "rows": out}, f, indent=1)
