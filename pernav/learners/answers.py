@@ -38,7 +38,7 @@ from pernav.world.constants import TURNS
 from pernav.world.drivers import DriverProfile, Population, resolve
 
 __all__ = ["EarlyTurn", "LabelledDrive", "drive_outcomes", "fit_belief", "fit_decision", "label",
-           "late_probability_each", "labelled_drive", "labelled_drives", "outcome_rows"]
+           "late_probability_each", "labelled_drive", "labelled_drives", "outcome_rows", "record_hearing"]
 
 
 @dataclass
@@ -55,6 +55,22 @@ class LabelledDrive:
     took_effect: dict[float, float | None]  # a played prompt's audio end -> when it took effect (None: misheard/ignored)
 
 
+def record_hearing(ego: Any) -> list[tuple[float, list[Any]]]:
+    """Record every prompt the simulated driver ``ego`` is played, as ``(when, the heard entries it added)`` (none:
+    misheard or ignored), without changing the drive (the same draws as unobserved). The simulator's own labels, for
+    offline fitting and checks only, never a learner's input at round time."""
+    log: list[tuple[float, list[Any]]] = []
+    hear = ego.hear
+
+    def recording_hear(instruction: int, playback: str, now: float) -> None:
+        before = list(ego.heard)
+        hear(instruction, playback, now)
+        log.append((now, [h for h in ego.heard if h not in before]))
+
+    ego.hear = recording_hear
+    return log
+
+
 def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, seed: int,
                    config: Mapping[str, Any] | None = None,
                    policy: Callable[[Mapping[str, Any]], int] | None = None) -> LabelledDrive:
@@ -62,17 +78,7 @@ def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, 
     ``policy``, its action from each step's env info instead (e.g. explore re-timed: what an early prompt does)."""
     env = NavigationEnv(town, config=dict(config or {}))
     _, info = env.reset(seed=seed, options={"route": route, "user": profile, "context": context})
-    ego = env.world.ego
-    active: dict[float, float | None] = {}  # prompt start -> when it took effect (None: misheard or ignored)
-    hear = ego.hear
-
-    def recording_hear(instruction: int, playback: str, now: float) -> None:
-        before = list(ego.heard)
-        hear(instruction, playback, now)  # the same draws as unobserved: the drive is unchanged
-        new = [h for h in ego.heard if h not in before]
-        active[round(float(now), 6)] = new[0].active_at if new else None
-
-    ego.hear = recording_hear
+    hearing = record_hearing(env.world.ego)
     steps, done, swerves = [], False, 0
     while not done:
         action = int(policy(info)) if policy is not None else int(info["explore_action"])
@@ -88,6 +94,8 @@ def labelled_drive(town: str, profile: DriverProfile, context: Any, route: int, 
     played = [s for s in steps if s["played"]]
     answers = answers_of([s["instruction"] for s in played], [s["prompt_end"] for s in played], series, times,
                          complete=False)
+    # prompt start -> when it took effect (None: misheard or ignored)
+    active = {round(float(now), 6): (new[0].active_at if new else None) for now, new in hearing}
     took_effect = {s["prompt_end"]: active.get(round(float(s["prompt_start"]), 6)) for s in played}
     driver = resolve(profile, context)
     return LabelledDrive(answers, [label(a, took_effect[a.end]) for a in answers], driver.reaction_time,

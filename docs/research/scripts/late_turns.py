@@ -22,6 +22,7 @@ import json
 from collections import deque
 
 from pernav.env.navigation import NavigationEnv
+from pernav.learners.answers import record_hearing
 from pernav.world.constants import TURNS
 from pernav.world.drivers import population_samples, resolve
 
@@ -37,13 +38,8 @@ def drive_counts(town: str, profile, context, route: int, seed: int, delay: int)
     said = deque([0] * delay)
     counts = {k: 0 for k in ("swerves", "missed", "missed_without_turn_in_effect", "swerved_in_time", "swerved_with_room",
                              "swerved_without_room", "missed_in_time", "missed_with_room", "missed_without_room")}
-    ego, turns, steps = env.world.ego, [], []  # turns: (heard at, takes effect at) of every "turn" understood
-    hear = ego.hear
-
-    def recording_hear(instruction: int, playback: str, now: float) -> None:
-        before = list(ego.heard)
-        hear(instruction, playback, now)  # the same draws as unobserved: the drive is unchanged
-        turns.extend((h.heard_at, h.active_at) for h in ego.heard if h not in before and h.instruction in TURNS)
+    ego, steps = env.world.ego, []
+    hearing = record_hearing(ego)
 
     def room_at(moment: float) -> str:
         """``in_time`` where the driver had not committed at ``moment`` (its decision time at its speed, at least 4 m,
@@ -55,7 +51,6 @@ def drive_counts(town: str, profile, context, route: int, seed: int, delay: int)
             return "in_time"
         return "with_room" if (v**2 - d.turn_speed**2) / (2 * HARD_BRAKE * d.comfort_decel) <= left else "without_room"
 
-    ego.hear = recording_hear
     swerves, missed, done = 0, 0, False
     while not done:
         said.append(int(info["explore_action"]))
@@ -69,10 +64,9 @@ def drive_counts(town: str, profile, context, route: int, seed: int, delay: int)
                 continue
             counts["swerves" if kind == "swerved" else "missed"] += 1
             reach = now + 1.0 if kind == "swerved" else now + dist / max(v, 0.1)  # when the car reached it
-            heard = [a for h, a in turns if h < reach]
+            heard = [h.active_at for _, new in hearing for h in new if h.instruction in TURNS and h.heard_at < reach]
             if heard and heard[-1] < reach:
-                key = f"{kind}_{room_at(heard[-1])}"
-                counts[key] = counts.get(key, 0) + 1
+                counts[f"{kind}_{room_at(heard[-1])}"] += 1
             elif kind == "missed":
                 counts["missed_without_turn_in_effect"] += 1
         swerves, missed = env.world.events.swerves, int(info["missed_turns"])
