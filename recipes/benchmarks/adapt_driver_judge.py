@@ -88,6 +88,8 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
     ``look``'s targets (an entry of the registration)."""
     targets = look["targets"]
     towns: dict[str, Any] = {}
+    pooled: dict[str, list[tuple[dict, dict]]] = {}  # town -> pairs over the runs (seeds), where the look pools them
+    given: set[tuple[str, Any]] = set()
     for res in runs:
         cfg = res["config"]
         if cfg.get("preset") != "paper" or cfg.get("seed") not in look["seeds"]:
@@ -102,30 +104,34 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
                     rows.setdefault(town, []).extend(zip(methods["explore"]["episodes"],
                                                          methods["adapt_driver"]["episodes"], strict=True))
         for town, pairs in rows.items():
-            if town in towns:
-                raise ValueError(f"{town} is given twice")
-            e_cost = [e["tracking_cost"] for e, _ in pairs]
-            d = paired_difference(e_cost, [a["tracking_cost"] for _, a in pairs])
-            mean_e = sum(e_cost) / len(e_cost)
-            count = {k: (sum(int(a.get(k, 0)) for _, a in pairs), sum(int(e.get(k, 0)) for e, _ in pairs))
-                     for k in ("missed_turns", "collisions", "wrong_turns", "edge_strikes")}
-            incomplete = (sum(not a["completed"] for _, a in pairs), sum(not e["completed"] for e, _ in pairs))
-            share = {k: d[k] / mean_e for k in ("mean", "low", "high")}
-            collisions = paired_difference([a["collisions"] for _, a in pairs], [e["collisions"] for e, _ in pairs])
-            # the mean "turn" lead where both drives said one (s before the junction): how early each prompts
-            leads = [(a["turn_lead"], e["turn_lead"]) for e, a in pairs
-                     if a.get("turn_lead") is not None and e.get("turn_lead") is not None]
-            lead = [sum(x[i] for x in leads) / len(leads) if leads else None for i in (0, 1)]
-            towns[town] = {"episodes": len(pairs), "explore_mean_cost": mean_e, "explore_minus_adapt_driver": d,
-                           "as_share_of_explore": share, "adapt_driver_minus_explore_collisions": collisions,
-                           "adapt_driver_vs_explore": {**count, "incomplete": incomplete, "turn_lead_mean": lead},
-                           "verdict": {
-                               "cost": {"target_ci_low": targets["cost"]["ci_low"], "ci_low": share["low"],
-                                        "met": share["low"] > targets["cost"]["ci_low"]},
-                               "missed_turns": {"target": targets["missed_turns"]["point"], "met": count["missed_turns"][0]
-                                                <= targets["missed_turns"]["point"] * count["missed_turns"][1]},
-                               "collisions": {"target": targets["collisions"]["point"], "met": count["collisions"][0]
-                                              <= targets["collisions"]["point"] * count["collisions"][1]}}}
+            # a look with ``pool`` judges a town's episodes over its seeds together; otherwise one run per town
+            if (town, cfg.get("seed")) in given or (town in pooled and not look.get("pool")):
+                raise ValueError(f"{town} is given twice" + ("" if look.get("pool") else " (this look pools no seeds)"))
+            given.add((town, cfg.get("seed")))
+            pooled.setdefault(town, []).extend(pairs)
+    for town, pairs in pooled.items():
+        e_cost = [e["tracking_cost"] for e, _ in pairs]
+        d = paired_difference(e_cost, [a["tracking_cost"] for _, a in pairs])
+        mean_e = sum(e_cost) / len(e_cost)
+        count = {k: (sum(int(a.get(k, 0)) for _, a in pairs), sum(int(e.get(k, 0)) for e, _ in pairs))
+                 for k in ("missed_turns", "collisions", "wrong_turns", "edge_strikes")}
+        incomplete = (sum(not a["completed"] for _, a in pairs), sum(not e["completed"] for e, _ in pairs))
+        share = {k: d[k] / mean_e for k in ("mean", "low", "high")}
+        collisions = paired_difference([a["collisions"] for _, a in pairs], [e["collisions"] for e, _ in pairs])
+        # the mean "turn" lead where both drives said one (s before the junction): how early each prompts
+        leads = [(a["turn_lead"], e["turn_lead"]) for e, a in pairs
+                 if a.get("turn_lead") is not None and e.get("turn_lead") is not None]
+        lead = [sum(x[i] for x in leads) / len(leads) if leads else None for i in (0, 1)]
+        towns[town] = {"episodes": len(pairs), "explore_mean_cost": mean_e, "explore_minus_adapt_driver": d,
+                       "as_share_of_explore": share, "adapt_driver_minus_explore_collisions": collisions,
+                       "adapt_driver_vs_explore": {**count, "incomplete": incomplete, "turn_lead_mean": lead},
+                       "verdict": {
+                           "cost": {"target_ci_low": targets["cost"]["ci_low"], "ci_low": share["low"],
+                                    "met": share["low"] > targets["cost"]["ci_low"]},
+                           "missed_turns": {"target": targets["missed_turns"]["point"], "met": count["missed_turns"][0]
+                                            <= targets["missed_turns"]["point"] * count["missed_turns"][1]},
+                           "collisions": {"target": targets["collisions"]["point"], "met": count["collisions"][0]
+                                          <= targets["collisions"]["point"] * count["collisions"][1]}}}
     out.mkdir(parents=True, exist_ok=True)
     (out / f"{name}.json").write_text(json.dumps({"look": name, "towns": towns}, indent=1) + "\n")
     lines = []

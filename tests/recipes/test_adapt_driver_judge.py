@@ -42,6 +42,20 @@ def test_the_paper_look_refuses_a_seed_it_is_not_registered_on(tmp_path):
         paper([_results([1.0], [1.0], (0, 0), seed=0)], LOOK, tmp_path, "look")
 
 
+def test_a_pooled_look_judges_a_towns_episodes_over_its_seeds_and_a_look_that_pools_none_refuses_two(tmp_path):
+    one = _results([100.0, 100.0], [90.0, 90.0], (1, 1), seed=1)
+    two = _results([100.0, 100.0], [130.0, 130.0], (0, 2), seed=2)
+    pooled = {**LOOK, "seeds": [1, 2], "pool": True}
+    paper([one, two], pooled, tmp_path, "look")
+    town = json.loads((tmp_path / "look.json").read_text())["towns"]["Town4"]
+    assert town["episodes"] == 4 and town["explore_minus_adapt_driver"]["mean"] == pytest.approx(-10.0)
+    assert town["adapt_driver_vs_explore"]["missed_turns"] == [3, 1]
+    with pytest.raises(ValueError, match="given twice"):  # the same seed twice, even where seeds pool
+        paper([one, one], pooled, tmp_path, "look")
+    with pytest.raises(ValueError, match="pools no seeds"):
+        paper([one, two], {**LOOK, "seeds": [1, 2]}, tmp_path, "look")
+
+
 TARGETS = {"all_against_best_learner": {"point": 1.01, "ci_high": 1.02}, "quick_cost_ratio": {"point": 1.01},
            "slow_gap_to_best_shift": {"point": 0.6, "ci_low": 0.3}, "collisions": {}}
 
