@@ -61,6 +61,7 @@ from pernav.world.drivers import Context
 
 DELAY, STEPS = 3, (5, 10)
 PLANNING = env_planning_config({"kind": "retime"})  # the explore plan as far ahead as the re-timings reach
+TAU_ROUTE = 7  # the route of tau, the drive every model adapts on (seed 77): never a scored state's
 
 
 def driver_env(driver: str, town: str, route: int, seed: int, K: int, config: dict | None = None) -> EnvBase:
@@ -178,7 +179,13 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
                     "measured; 20 takes about 10x the diagnostic's time)")
     ap.add_argument("--adapt-step", choices=["study", "fixed"], default="study",
                     help="U as the study adapts at test time (default), or its fixed step alpha unclipped")
+    ap.add_argument("--first-episode", dest="first_episode", type=int, default=0,
+                    help="the panel's first episode whose states are scored (default 0: the diagnostic's own, "
+                         "episodes 0-1, on which the models were developed; 2: held-out states, episodes 2-3)")
     args = ap.parse_args(argv)
+    if args.first_episode < 0 or args.first_episode <= TAU_ROUTE < args.first_episode + 2:
+        ap.error(f"--first-episode must be >= 0, and its two episodes must not include tau's route "
+                 f"({TAU_ROUTE}); got {args.first_episode}")
     torch.set_num_threads(1)
     try:  # the finished study's adapt ensemble and the settings it adapted with; adapt_driver's state
         finished = FinishedStudy.open(args.study)
@@ -194,13 +201,13 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     for driver in args.drivers:
         retimed = args.tau_policy == "retimed"
         policy = RetimedExplore(seed=77) if retimed else explore_module()
-        tau = drive(driver_env(driver, args.town, 7, 77, K, PLANNING if retimed else None), policy)
+        tau = drive(driver_env(driver, args.town, TAU_ROUTE, 77, K, PLANNING if retimed else None), policy)
         models = _adapt_models(study, tau, driver, args) if study is not None else {}
         if driver_state is not None:  # the hybrid model: U(P, tau) and, without adaptation, P's centre
             trackers = driver_state.read_tau(driver, "diagnosis", tau, ["adapt_driver", "adapt_driver_static"])
             models["adapt_driver"] = (DriverImaginedEnv(trackers["adapt_driver"].belief.drivers()), None)
             models["adapt_driver_meta"] = (DriverImaginedEnv(trackers["adapt_driver_static"].belief.drivers()), None)
-        div = approach_divergences(driver, args.town, models, K=K, ceiling=args.ceiling)
+        div = approach_divergences(driver, args.town, models, K=K, ceiling=args.ceiling, first=args.first_episode)
         for name, values in div.items():
             pooled.setdefault(name, []).append(values)
         rows[driver] = {"states": int(div["true"].shape[0]), "true_mean": [round(float(x), 2) for x in div["true"].mean(0)]}
@@ -217,7 +224,8 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     quiet = {name: [round(float((pooled[name][:, i][small[:, i]] < 1.0).mean()), 3) if small[:, i].any() else None
                     for i in range(len(STEPS))] for name in pooled if name != "true"}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps({"steps": STEPS, "delay_s": DELAY, "town": args.town, "drivers": rows,
+    Path(args.json).write_text(json.dumps({"steps": STEPS, "delay_s": DELAY, "town": args.town,
+                                           "first_episode": args.first_episode, "drivers": rows,
                                            "pooled_corr": overall, "under_1m_where_true_under_0_5m": quiet,
                                            "divergences": {k: v.round(2).tolist() for k, v in pooled.items()}},
                                           indent=1))

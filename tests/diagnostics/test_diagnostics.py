@@ -85,6 +85,15 @@ def test_pernav_diagnose_model_without_a_finished_study_exit_2(tmp_path, capsys)
     assert len(err.splitlines()) == 1 and "holds no pernav study" in err
 
 
+@pytest.mark.parametrize("first", ["-1", "6", "7"])
+def test_pernav_diagnose_model_refuses_held_out_episodes_that_hold_taus_route_exit_2(tmp_path, capsys, first):
+    with pytest.raises(SystemExit) as exit_:
+        main(["diagnose", "model", "--study", str(tmp_path), "--first-episode", first])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "Traceback" not in err and "--first-episode must be >= 0" in err
+    assert f"got {first}" in err.splitlines()[-1]
+
+
 @pytest.mark.slow
 def test_the_model_check_pairs_explores_next_prompts_with_the_same_prompts_later():
     """At each approach state the diagnostic's pair is explore's next prompts now and the same DELAY s later."""
