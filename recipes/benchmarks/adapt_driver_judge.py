@@ -122,7 +122,14 @@ def paper(runs: list[dict[str, Any]], look: dict[str, Any], out: Path = OUT, nam
         leads = [(a["turn_lead"], e["turn_lead"]) for e, a in pairs
                  if a.get("turn_lead") is not None and e.get("turn_lead") is not None]
         lead = [sum(x[i] for x in leads) / len(leads) if leads else None for i in (0, 1)]
+        # how much adapt_driver leaves explore (its share of steps), and what the episodes where it did cost: the
+        # others are explore's own drive, paired exactly
+        departed = [e["tracking_cost"] - a["tracking_cost"] for e, a in pairs if a.get("left_explore", 0) > 0]
+        departures = {"left_explore_mean": sum(a.get("left_explore", 0) for _, a in pairs) / len(pairs),
+                      "episodes": len(departed),
+                      "explore_minus_adapt_driver_mean": sum(departed) / len(departed) if departed else None}
         towns[town] = {"episodes": len(pairs), "explore_mean_cost": mean_e, "explore_minus_adapt_driver": d,
+                       "departures": departures,
                        "as_share_of_explore": share, "adapt_driver_minus_explore_collisions": collisions,
                        "adapt_driver_vs_explore": {**count, "incomplete": incomplete, "turn_lead_mean": lead},
                        "verdict": {

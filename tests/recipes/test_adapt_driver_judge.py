@@ -50,6 +50,13 @@ def test_a_pooled_look_judges_a_towns_episodes_over_its_seeds_and_a_look_that_po
     town = json.loads((tmp_path / "look.json").read_text())["towns"]["Town4"]
     assert town["episodes"] == 4 and town["explore_minus_adapt_driver"]["mean"] == pytest.approx(-10.0)
     assert town["adapt_driver_vs_explore"]["missed_turns"] == [3, 1]
+    assert town["departures"]["episodes"] == 0 and town["departures"]["explore_minus_adapt_driver_mean"] is None
+    for i, e in enumerate(two["iterations"][0]["towns"]["Town4"]["adapt_driver"]["episodes"]):
+        e["left_explore"] = 0.1 * i  # the second of seed 2's episodes left explore, at a tenth of its steps
+    paper([one, two], pooled, tmp_path, "look")
+    departures = json.loads((tmp_path / "look.json").read_text())["towns"]["Town4"]["departures"]
+    assert departures["episodes"] == 1 and departures["explore_minus_adapt_driver_mean"] == pytest.approx(-30.0)
+    assert departures["left_explore_mean"] == pytest.approx(0.1 / 4)
     with pytest.raises(ValueError, match="given twice"):  # the same seed twice, even where seeds pool
         paper([one, one], pooled, tmp_path, "look")
     with pytest.raises(ValueError, match="pools no seeds"):
