@@ -2,7 +2,14 @@
 seeds and the estimates the study recorded, with this tree's planner) and count each departure by the instruction
 said and how many steps before explore would say it ("silence for X": explore's X not said now).
 
-    .venv/bin/python docs/research/scripts/departure_kinds.py runs/STUDY Town1
+With ``--json``, also each departure kind's episodes and their paired cost: explore's cost in the study (the same
+episode) minus the replayed adapt_driver drive's, over the episodes where that kind occurs, and over those where it
+is the only kind (an episode's departures decide its difference: one with none is explore's drive). The replayed
+cost is checked against the study's own (``replay_matches``): the replay restores each round's estimate and response
+as the study recorded them (rounded to 4 digits), but not that round's meta model P (the study keeps the last one),
+which the drive's own updates and the imagination's spread read, so a replay is not always the study's drive.
+
+    .venv/bin/python docs/research/scripts/departure_kinds.py runs/STUDY Town1 [--json FILE]
 """
 
 from __future__ import annotations
@@ -10,7 +17,10 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
+import json
 import math
+import statistics
+from pathlib import Path
 
 import torch
 
@@ -35,9 +45,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("study")
     parser.add_argument("town")
+    parser.add_argument("--json", default=None, help="each kind's episodes and paired cost (explore - adapt_driver)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     study = FinishedStudy.open(args.study)
+    results = json.loads((study.folder / "results.json").read_text())
+    recorded = {(it["label"], e["route"]): (e["tracking_cost"], a["tracking_cost"])
+                for it in results["iterations"] if args.town in it["towns"]
+                and "adapt_driver" in it["towns"][args.town]
+                for e, a in zip(it["towns"][args.town]["explore"]["episodes"],
+                                it["towns"][args.town]["adapt_driver"]["episodes"], strict=True)}
+    episodes: list[dict] = []
     cfg = dataclasses.replace(preset(study.config["preset"]), seed=study.config["seed"], towns=[args.town])
     state = study.driver_state(args.town)
     kinds: collections.Counter[str] = collections.Counter()
@@ -45,8 +63,10 @@ def main() -> None:
         read = state.data["rounds"].get(entry.label, {}).get("adapt_driver")
         if entry.phase == "offline" or read is None:
             continue
-        estimate = Estimate((math.log(read["reaction_time"]), read["decision_time"]), tuple(read["sd"]))
-        response = Response(**{k: read[k] for k in ("cruise", "turn_speed", "brake", "accel")})
+        estimate = Estimate((math.log(read["reaction_time"]), read["decision_time"]), tuple(read["sd"]),
+                            read.get("stepped", True))
+        # every field the round recorded (a "prepare"'s slowing among them: left out, the replay planned with the default)
+        response = Response(**{f.name: read[f.name] for f in dataclasses.fields(Response) if f.name in read})
         for route in range(cfg.routes):
             seed = derive_seed(cfg.seed, args.town, entry.label, "eval", route)
             tracker = state.tracker("adapt_driver", estimate, response)
@@ -55,10 +75,29 @@ def main() -> None:
             actions = trajectory["action"].reshape(-1).tolist()
             explore = trajectory["explore_action"].reshape(-1).tolist()
             futures = trajectory["explore_future"].long().tolist()
-            kinds.update(kind(a, e, f) for a, e, f in zip(actions, explore, futures, strict=True) if a != e)
-            print(entry.label, route, round(episode_metrics(trajectory)["tracking_cost"], 1), flush=True)
+            these = [kind(a, e, f) for a, e, f in zip(actions, explore, futures, strict=True) if a != e]
+            kinds.update(these)
+            cost = episode_metrics(trajectory)["tracking_cost"]
+            explore_cost, study_cost = recorded[(entry.label, route)]
+            episodes.append({"label": entry.label, "route": route, "kinds": these, "explore": explore_cost,
+                             "adapt_driver": cost, "study_adapt_driver": study_cost})
+            print(entry.label, route, round(cost, 1), flush=True)
     for name, n in kinds.most_common():
         print(f"{n:5d}  {name}")
+    if args.json:
+        def paired(rows: list[dict]) -> dict:
+            d = [r["explore"] - r["adapt_driver"] for r in rows]
+            return {"episodes": len(d), "explore_minus_adapt_driver": round(statistics.mean(d), 2) if d else None}
+
+        summary = {name: {"departures": n, "where_it_occurs": paired([r for r in episodes if name in r["kinds"]]),
+                          "where_alone": paired([r for r in episodes if r["kinds"] and set(r["kinds"]) == {name}])}
+                   for name, n in kinds.most_common()}
+        matches = sum(abs(r["adapt_driver"] - r["study_adapt_driver"]) < 1e-6 * max(1.0, abs(r["study_adapt_driver"]))
+                      for r in episodes)
+        with open(args.json, "w") as f:
+            json.dump({"study": Path(args.study).name, "town": args.town, "replay_matches": [matches, len(episodes)],
+                       "no_departure": paired([r for r in episodes if not r["kinds"]]), "kinds": summary,
+                       "episodes": episodes}, f, indent=1)
 
 
 if __name__ == "__main__":
