@@ -2,7 +2,7 @@
 seeds and the estimates the study recorded, with this tree's planner) and count each departure by the instruction
 said and how many steps before explore would say it ("silence for X": explore's X not said now).
 
-With ``--json``, also each departure kind's episodes and their paired cost: explore's cost in the study (the same
+With ``--json``, also each departure kind's episodes and their paired cost (95 % CI): explore's cost in the study (the same
 episode) minus the replayed adapt_driver drive's, over the episodes where that kind occurs, and over those where it
 is the only kind (an episode's departures decide its difference: one with none is explore's drive). The replayed
 cost is checked against the study's own (``replay_matches``): the replay restores each round's estimate and response
@@ -19,7 +19,6 @@ import collections
 import dataclasses
 import json
 import math
-import statistics
 from pathlib import Path
 
 import torch
@@ -28,6 +27,7 @@ from pernav.learners.driver import Estimate, Response
 from pernav.study.config import preset
 from pernav.study.episodes import EpisodeJob, make_policy, study_env
 from pernav.study.finished import FinishedStudy
+from pernav.study.stats import paired_difference
 from pernav.trainer.collect import derive_seed, drive, episode_metrics
 from pernav.world.constants import Instruction
 
@@ -39,6 +39,28 @@ def kind(action: int, explore: int, future: list[int]) -> str:
     if action in future:
         return f"{Instruction(action).name} said {future.index(action)} early"
     return f"{Instruction(action).name} (not in explore's plan)"
+
+
+def summary(episodes: list[dict]) -> dict:
+    """From the replayed ``episodes`` (each with its departures' ``kinds`` and both costs): how many replays are the
+    study's own drive, and explore − adapt_driver (paired, 95 % CI) over the episodes with no departure, with each
+    kind, with it alone, with only early "prepare"s, and with a "turn" held back."""
+    def paired(rows: list[dict]) -> dict:
+        if not rows:
+            return {"episodes": 0, "explore_minus_adapt_driver": None}
+        d = paired_difference([r["explore"] for r in rows], [r["adapt_driver"] for r in rows])
+        return {"episodes": len(rows), "explore_minus_adapt_driver": [round(d[k], 2) for k in ("mean", "low", "high")]}
+
+    kinds = collections.Counter(k for r in episodes for k in r["kinds"])
+    matches = sum(abs(r["adapt_driver"] - r["study_adapt_driver"]) < 1e-6 * max(1.0, abs(r["study_adapt_driver"]))
+                  for r in episodes)
+    return {"replay_matches": [matches, len(episodes)], "no_departure": paired([r for r in episodes if not r["kinds"]]),
+            "only_early_prepares": paired([r for r in episodes if r["kinds"] and all(
+                k.startswith("PREPARE") and k.endswith("early") for k in r["kinds"])]),
+            "a_turn_held_back": paired([r for r in episodes if any(k.startswith("silence for TURN") for k in r["kinds"])]),
+            "kinds": {name: {"departures": n, "where_it_occurs": paired([r for r in episodes if name in r["kinds"]]),
+                             "where_alone": paired([r for r in episodes if set(r["kinds"]) == {name}])}
+                      for name, n in kinds.most_common()}}
 
 
 def main() -> None:
@@ -58,7 +80,6 @@ def main() -> None:
     episodes: list[dict] = []
     cfg = dataclasses.replace(preset(study.config["preset"]), seed=study.config["seed"], towns=[args.town])
     state = study.driver_state(args.town)
-    kinds: collections.Counter[str] = collections.Counter()
     for entry in cfg.schedule:
         read = state.data["rounds"].get(entry.label, {}).get("adapt_driver")
         if entry.phase == "offline" or read is None:
@@ -76,28 +97,17 @@ def main() -> None:
             explore = trajectory["explore_action"].reshape(-1).tolist()
             futures = trajectory["explore_future"].long().tolist()
             these = [kind(a, e, f) for a, e, f in zip(actions, explore, futures, strict=True) if a != e]
-            kinds.update(these)
             cost = episode_metrics(trajectory)["tracking_cost"]
             explore_cost, study_cost = recorded[(entry.label, route)]
             episodes.append({"label": entry.label, "route": route, "kinds": these, "explore": explore_cost,
                              "adapt_driver": cost, "study_adapt_driver": study_cost})
             print(entry.label, route, round(cost, 1), flush=True)
-    for name, n in kinds.most_common():
+    for name, n in collections.Counter(k for r in episodes for k in r["kinds"]).most_common():
         print(f"{n:5d}  {name}")
     if args.json:
-        def paired(rows: list[dict]) -> dict:
-            d = [r["explore"] - r["adapt_driver"] for r in rows]
-            return {"episodes": len(d), "explore_minus_adapt_driver": round(statistics.mean(d), 2) if d else None}
-
-        summary = {name: {"departures": n, "where_it_occurs": paired([r for r in episodes if name in r["kinds"]]),
-                          "where_alone": paired([r for r in episodes if r["kinds"] and set(r["kinds"]) == {name}])}
-                   for name, n in kinds.most_common()}
-        matches = sum(abs(r["adapt_driver"] - r["study_adapt_driver"]) < 1e-6 * max(1.0, abs(r["study_adapt_driver"]))
-                      for r in episodes)
         with open(args.json, "w") as f:
-            json.dump({"study": Path(args.study).name, "town": args.town, "replay_matches": [matches, len(episodes)],
-                       "no_departure": paired([r for r in episodes if not r["kinds"]]), "kinds": summary,
-                       "episodes": episodes}, f, indent=1)
+            json.dump({"study": Path(args.study).name, "town": args.town, **summary(episodes), "episodes": episodes},
+                      f, indent=1)
 
 
 if __name__ == "__main__":
