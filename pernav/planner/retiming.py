@@ -231,6 +231,10 @@ class RetimingPlanner(MPCPlannerBase):
         params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
         kwargs = {} if params is None else {"params": params}
         pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
+        return self.score(root, pos, goal), pos
+
+    def score(self, root: TensorDictBase, pos: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """``[M, N]``: the planner's cost of positions and goals ``[M, N, H, 2]`` from ``root`` (imagined or driven)."""
         start_goal = root["history"][-1, [GX, GY]].float()
         prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
         cost = tracking_cost(pos, prev).sum(-1)
@@ -239,7 +243,7 @@ class RetimingPlanner(MPCPlannerBase):
         dist, nearest = d.min(-1)
         cost = cost + self.route_weight * (dist ** 2).sum(-1)
         progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
-        return cost - progress, pos
+        return cost - progress
 
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:

@@ -182,11 +182,6 @@ class DriverState:
                                        response)
         return out
 
-    def evidence_of(self, trajectory: Any, tracker: DriverTracker) -> Evidence:
-        reader = tracker.copy()
-        reader.observe_drive(trajectory)
-        return reader.belief.evidence
-
     def meta_update(self, others: list[Evidence], label: str | None = None) -> None:
         """FTML: ``P`` minimizes, over the offline drivers and every online round so far, the loss of the round's
         other drives under ``U(P, tau)``. The ``P`` this round used is kept with its pair (for :meth:`regret`)."""

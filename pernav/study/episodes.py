@@ -21,14 +21,21 @@ from pernav.learners.driver import DriverPlanner
 from pernav.model.dynamics import DynamicsModel
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner.factory import build_planner, env_planning_config
-from pernav.planner.retiming import ShiftedExplore
+from pernav.planner.retiming import RetimedExplore, ShiftedExplore
 from pernav.study.config import StudyConfig
 from pernav.study.driver_rounds import DRIVER_PLANNER
 from pernav.study.schedule import Entry
-from pernav.trainer.collect import drive, episode_metrics, history_env
+from pernav.trainer.collect import derive_seed, drive, episode_metrics, history_env
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_INSTRUCTIONS
 
-__all__ = ["EpisodeJob", "episode", "make_policy", "run_episode_job", "study_env"]
+__all__ = ["EpisodeJob", "collector", "episode", "make_policy", "run_episode_job", "run_evidence_job", "study_env"]
+
+
+def collector(cfg: StudyConfig, seed: int) -> Any:
+    """The learners' non-MPC data-collection policy (``cfg.collect``): explore, or explore re-timed at random."""
+    if cfg.collect == "retimed":
+        return RetimedExplore(seed=derive_seed(seed, "retimed"))
+    return explore_module()
 
 
 def study_env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = N_INSTRUCTIONS,
@@ -58,10 +65,11 @@ class EpisodeJob:
     entry: Entry
     route: int
     seed: int
-    policy: str  # explore | oracle | mpc | belief | driver | shift
+    policy: str  # explore | oracle | mpc | belief | driver | shift | collector
     n_actions: int = N_INSTRUCTIONS
     model: dict | None = None  # {"config": ..., "state": state_dict} for mpc
-    params: Any = None  # adapted parameters (TensorDict), a belief for "belief", a tracker for "driver", a shift, or None
+    params: Any = None  # adapted parameters (TensorDict), a belief for "belief", a tracker for "driver" (and for
+    # run_evidence_job's "collector"), a shift, or None
     policy_name: str = ""  # the study method this episode evaluates
 
 
@@ -75,6 +83,8 @@ def make_policy(job: EpisodeJob) -> Any:
         return info_action_module("belief_action")
     if job.policy == "driver":  # adapt_driver: MPC on the hybrid model, its tracker following the drive
         return DriverPlanner(job.params.copy(), DRIVER_PLANNER)
+    if job.policy == "collector":
+        return collector(job.cfg, job.seed)
     if job.policy == "shift":
         return ShiftedExplore(int(job.params), plan_shift=int(env_planning_config(job.cfg.planner).get("plan_shift", 2)))
     if job.policy != "mpc" or job.model is None:
@@ -94,3 +104,12 @@ def run_episode_job(job: EpisodeJob) -> dict[str, Any]:
     trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, policy, job.n_actions, belief)
     wall_time = {"episode_s": time.perf_counter() - t0, "planning_s": getattr(policy, "planning_s", 0.0)}
     return {"route": job.route, **episode_metrics(trajectory), "_wall_time": wall_time}
+
+
+def run_evidence_job(job: EpisodeJob) -> Any:
+    """Drive the job's episode and read it with a copy of its tracker (``job.params``): the drive's evidence about the
+    driver (:class:`~pernav.learners.driver.Evidence`), what adapt_driver's rollouts give its FTML update."""
+    trajectory = episode(job.cfg, job.town, job.entry, job.route, job.seed, make_policy(job), job.n_actions)
+    reader = job.params.copy()
+    reader.observe_drive(trajectory)
+    return reader.belief.evidence

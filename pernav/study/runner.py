@@ -51,7 +51,7 @@ from pernav.planner.retiming import RetimedExplore
 from pernav.study.checkpoints import RunState, load_checkpoint, save_checkpoint
 from pernav.study.config import LEARNERS, StudyConfig
 from pernav.study.driver_rounds import DRIVER_METHODS, SHIFTS, DriverState, fit_driver
-from pernav.study.episodes import EpisodeJob, episode, make_policy, run_episode_job
+from pernav.study.episodes import EpisodeJob, collector, episode, run_episode_job, run_evidence_job
 from pernav.study.parallel import SerialExecutor
 from pernav.study.schedule import Entry
 from pernav.trainer.buffers import RoundBuffers
@@ -100,13 +100,6 @@ class Learner:
     def spec(self) -> dict[str, Any]:
         """The model as an :class:`EpisodeJob` ships it (config + a copy of the state dict)."""
         return {"config": self.model.config(), "state": {k: v.clone() for k, v in self.model.state_dict().items()}}
-
-
-def _collector(cfg: StudyConfig, seed: int) -> Any:
-    """The learners' non-MPC data-collection policy (``cfg.collect``): explore, or explore re-timed at random."""
-    if cfg.collect == "retimed":
-        return RetimedExplore(seed=derive_seed(seed, "retimed"))
-    return explore_module()
 
 
 def _tau_policy(cfg: StudyConfig, seed: int) -> Any:
@@ -330,7 +323,7 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
                 use_mpc = rng.random() < 0.5
                 route = rng.randrange(10)
                 seed = run.seed(entry.label, name, k)
-                policy = learner.planner if use_mpc else _collector(cfg, seed)
+                policy = learner.planner if use_mpc else collector(cfg, seed)
                 traj = episode(cfg, run.town, entry, route, seed, policy, learner.n_actions)
                 learner.buffers.add(index, traj)  # already in the learner's action space
     run.profile["collection_planning_s"] = run.profile.get("collection_planning_s", 0.0) + sum(
@@ -340,16 +333,16 @@ def _rollouts(run: _Town, entry: Entry, index: int, rng: random.Random, adapted:
 def _driver_rollouts(run: _Town, entry: Entry, tracker: Any) -> None:
     """adapt_driver's data: ``rollouts`` drives of the round's user (its MPC w.p. 1/2, else the collector), whose
     evidence scores ``U(P, tau)`` in the FTML update of its meta model that follows. Its own random stream: the other
-    learners' drives are unchanged by it."""
+    learners' drives are unchanged by it. The drives are independent (each reads a copy of the tracker), so they run
+    on the study's executor, in order."""
     cfg, state = run.cfg, DriverState(run.state.driver)
     rng = random.Random(run.seed(entry.label, "adapt_driver", "rollouts"))
-    others = []
+    jobs = []
+    for k in range(cfg.rollouts):
+        use_mpc, route, seed = rng.random() < 0.5, rng.randrange(10), run.seed(entry.label, "adapt_driver", k)
+        jobs.append(EpisodeJob(cfg, run.town, entry, route, seed, "driver" if use_mpc else "collector", params=tracker))
     with _Timer(run.profile, "adapt_driver_collection_s"):
-        for k in range(cfg.rollouts):
-            use_mpc, route, seed = rng.random() < 0.5, rng.randrange(10), run.seed(entry.label, "adapt_driver", k)
-            policy = make_policy(EpisodeJob(cfg, run.town, entry, route, seed, "driver", params=tracker)) if use_mpc \
-                else _collector(cfg, seed)
-            others.append(state.evidence_of(episode(cfg, run.town, entry, route, seed, policy), tracker))
+        others = run.executor.map(run_evidence_job, jobs, desc=f"{run.town} {entry.label} adapt_driver rollouts")
     with _Timer(run.profile, "adapt_driver_meta_s"):
         state.meta_update(others, entry.label)
 
@@ -402,7 +395,7 @@ def _collect_offline(cfg: StudyConfig, town: str, entry: Entry, index: int, rng:
         for k in range(cfg.offline_trajectories):
             route = rng.randrange(10)
             seed = derive_seed(cfg.seed, town, entry.label, "offline", k)
-            policy = _tau_policy(cfg, seed) if k == 0 else _collector(cfg, seed)  # k = 0 is tau
+            policy = _tau_policy(cfg, seed) if k == 0 else collector(cfg, seed)  # k = 0 is tau
             traj = episode(cfg, town, entry, route, seed, policy)
             if not isinstance(policy, RetimedExplore):  # the round's explore figures: explore's episodes
                 episodes.append({"route": route, **episode_metrics(traj)})

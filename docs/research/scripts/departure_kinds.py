@@ -63,23 +63,20 @@ def summary(episodes: list[dict]) -> dict:
                       for name, n in kinds.most_common()}}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("study")
-    parser.add_argument("town")
-    parser.add_argument("--json", default=None, help="each kind's episodes and paired cost (explore - adapt_driver)")
-    args = parser.parse_args()
-    torch.set_num_threads(1)
-    study = FinishedStudy.open(args.study)
+def replays(folder: str, town: str, policy_hook=None):
+    """Each adapt_driver episode of the study at ``folder`` in ``town``, replayed: yields ``(label, route, trajectory,
+    explore_cost, study_cost)`` with explore's and adapt_driver's costs as the study recorded them. ``policy_hook(policy,
+    env)`` (optional) may wrap the episode's policy (a :class:`~pernav.learners.driver.DriverPlanner`) before the drive
+    and returns the policy to drive."""
+    study = FinishedStudy.open(folder)
     results = json.loads((study.folder / "results.json").read_text())
     recorded = {(it["label"], e["route"]): (e["tracking_cost"], a["tracking_cost"])
-                for it in results["iterations"] if args.town in it["towns"]
-                and "adapt_driver" in it["towns"][args.town]
-                for e, a in zip(it["towns"][args.town]["explore"]["episodes"],
-                                it["towns"][args.town]["adapt_driver"]["episodes"], strict=True)}
-    episodes: list[dict] = []
-    cfg = dataclasses.replace(preset(study.config["preset"]), seed=study.config["seed"], towns=[args.town])
-    state = study.driver_state(args.town)
+                for it in results["iterations"] if town in it["towns"]
+                and "adapt_driver" in it["towns"][town]
+                for e, a in zip(it["towns"][town]["explore"]["episodes"],
+                                it["towns"][town]["adapt_driver"]["episodes"], strict=True)}
+    cfg = dataclasses.replace(preset(study.config["preset"]), seed=study.config["seed"], towns=[town])
+    state = study.driver_state(town)
     for entry in cfg.schedule:
         read = state.data["rounds"].get(entry.label, {}).get("adapt_driver")
         if entry.phase == "offline" or read is None:
@@ -89,19 +86,32 @@ def main() -> None:
         # every field the round recorded (a "prepare"'s slowing among them: left out, the replay planned with the default)
         response = Response(**{f.name: read[f.name] for f in dataclasses.fields(Response) if f.name in read})
         for route in range(cfg.routes):
-            seed = derive_seed(cfg.seed, args.town, entry.label, "eval", route)
+            seed = derive_seed(cfg.seed, town, entry.label, "eval", route)
             tracker = state.tracker("adapt_driver", estimate, response)
-            policy = make_policy(EpisodeJob(cfg, args.town, entry, route, seed, "driver", params=tracker))
-            trajectory = drive(study_env(cfg, args.town, entry, route, seed), policy)
-            actions = trajectory["action"].reshape(-1).tolist()
-            explore = trajectory["explore_action"].reshape(-1).tolist()
-            futures = trajectory["explore_future"].long().tolist()
-            these = [kind(a, e, f) for a, e, f in zip(actions, explore, futures, strict=True) if a != e]
-            cost = episode_metrics(trajectory)["tracking_cost"]
-            explore_cost, study_cost = recorded[(entry.label, route)]
-            episodes.append({"label": entry.label, "route": route, "kinds": these, "explore": explore_cost,
-                             "adapt_driver": cost, "study_adapt_driver": study_cost})
-            print(entry.label, route, round(cost, 1), flush=True)
+            policy = make_policy(EpisodeJob(cfg, town, entry, route, seed, "driver", params=tracker))
+            env = study_env(cfg, town, entry, route, seed)
+            if policy_hook is not None:
+                policy = policy_hook(policy, env)
+            yield (entry.label, route, drive(env, policy), *recorded[(entry.label, route)])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("study")
+    parser.add_argument("town")
+    parser.add_argument("--json", default=None, help="each kind's episodes and paired cost (explore - adapt_driver)")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    episodes: list[dict] = []
+    for label, route, trajectory, explore_cost, study_cost in replays(args.study, args.town):
+        actions = trajectory["action"].reshape(-1).tolist()
+        explore = trajectory["explore_action"].reshape(-1).tolist()
+        futures = trajectory["explore_future"].long().tolist()
+        these = [kind(a, e, f) for a, e, f in zip(actions, explore, futures, strict=True) if a != e]
+        cost = episode_metrics(trajectory)["tracking_cost"]
+        episodes.append({"label": label, "route": route, "kinds": these, "explore": explore_cost,
+                         "adapt_driver": cost, "study_adapt_driver": study_cost})
+        print(label, route, round(cost, 1), flush=True)
     for name, n in collections.Counter(k for r in episodes for k in r["kinds"]).most_common():
         print(f"{n:5d}  {name}")
     if args.json:
