@@ -146,12 +146,15 @@ def main() -> None:
             break
     matches = sum(abs(e["adapt_driver"] - e["study_adapt_driver"]) < 1e-6 * max(1.0, abs(e["study_adapt_driver"]))
                   for e in episodes)
-    out = {"study": Path(args.study).name, "town": args.town, "samples": args.samples,
+    out = {"study": "/".join(Path(args.study).parts[-2:]), "town": args.town, "samples": args.samples,
            "replay_matches": [matches, len(episodes)], **summary(departures),
            "departures": departures, "episodes": episodes}
     print(json.dumps({k: out[k] for k in ("replay_matches", "all")}, indent=1))
     if args.json:
-        Path(args.json).write_text(json.dumps(out, indent=1))
+        # the summary indented, each departure and episode on a line of its own
+        head = json.dumps({k: v for k, v in out.items() if k not in ("departures", "episodes")}, indent=1)[:-2]
+        rows = {k: ",\n  ".join(json.dumps(r) for r in out[k]) for k in ("departures", "episodes")}
+        Path(args.json).write_text(head + "".join(f',\n "{k}": [\n  {v}\n ]' for k, v in rows.items()) + "\n}\n")
 
 
 if __name__ == "__main__":
