@@ -19,10 +19,9 @@ setup: $(STAMP)
 # not read pip's configuration, so pip's wheel folders are passed on. Where uv cannot be installed or cannot reach an
 # index, pip does it all as before.
 unexport PYTHONDONTWRITEBYTECODE
-# Python's string hashing is salted per process unless PYTHONHASHSEED is set, and a study's figures depend on it: the
-# same study differs in the 5th digit between two hash seeds (one of paper Town5's 96 offline drives at seed 10 parts
-# at its 85th step; where the salt enters was not found, docs/study.md). Every process these targets start (the CLI's
-# pool and Ray workers inherit it) hashes alike, so a run is the same run on any machine and with any worker count.
+# Python's string hashing is salted per process unless PYTHONHASHSEED is set, and a study's figures can depend on it
+# (one of paper Town5's 96 offline drives at seed 10 parts at its 85th step under another salt; where it enters was not
+# found: docs/study.md). Every process these targets start (the CLI's pool and Ray workers inherit it) hashes alike.
 export PYTHONHASHSEED := 0
 WHEELS ?= $(or $(PIP_FIND_LINKS),$(wildcard /opt/wheels))
 UV := $(BIN)/uv pip install -q --python $(BIN)/python $(foreach w,$(WHEELS),--find-links $(w))
