@@ -55,7 +55,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
 from pernav.env.layout import ROUTE_SPACING, STATE_DIM
-from pernav.model.egocentric import GX, GY
+from pernav.model.egocentric import GX, GY, VX, VY, X, Y
 from pernav.planner.discrete import planning_roots
 from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, PREPARES, Instruction
 from pernav.world.cost import tracking_cost
@@ -196,16 +196,22 @@ class RetimingPlanner(MPCPlannerBase):
             no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
         prepare_early: a "prepare" may be said before explore says it. ``False``: a candidate that says a "prepare"
             now where explore's plan does not is refused, so only the "turn" (and silences) are re-timed.
+        by_distance: read each candidate's steps as distances (an option, off by default; nineteenth session).
+            Explore's plan is imagined at the car's speed now, so where the car speeds up or slows explore says its
+            prompts steps earlier or later than its plan (docs/adapt_driver.md). With this option, step ``h`` of every
+            candidate plays the plan's step that the car, driving explore's plan in the imagination (the rows' mean),
+            has reached by then at the plan's speed: a prompt said where the plan says it, in metres, not in steps.
+            The first step (the action played) is unchanged.
     """
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
-                 in_order: bool = False, prepare_early: bool = True) -> None:
+                 in_order: bool = False, prepare_early: bool = True, by_distance: bool = False) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
         self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
-        self.prepare_early = bool(prepare_early)
+        self.prepare_early, self.by_distance = bool(prepare_early), bool(by_distance)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree
@@ -245,6 +251,26 @@ class RetimingPlanner(MPCPlannerBase):
         progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
         return cost - progress
 
+    def distance_steps(self, root: TensorDictBase, seqs: torch.Tensor, explore: int) -> torch.Tensor:
+        """``seqs`` ``[N, H]`` read by distance (``by_distance``): step ``h`` plays step ``j(h)`` of each sequence, where
+        ``j(h)`` is how many of the plan's steps (at the car's speed now) the car has driven when step ``h`` starts,
+        imagining explore's plan (the rows' mean). Unchanged where the car is (nearly) stopped: the plan then does
+        not move on."""
+        hist = root["history"]
+        v0 = float(torch.hypot(hist[-1, VX], hist[-1, VY]))
+        if v0 < 0.5:
+            return seqs
+        params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
+        pos, _ = self.env.imagine(root, seqs[explore:explore + 1], **({} if params is None else {"params": params}))
+        path = pos[:, 0].mean(0).double()  # [H, 2]
+        start = hist[-1, [X, Y]].double()
+        moved = torch.cat([path[:1] - start[None], path[1:] - path[:-1]]).norm(dim=-1).cumsum(0)  # by each step's end
+        at_start = torch.cat([moved.new_zeros(1), moved[:-1]])  # driven when each step starts
+        H = seqs.shape[1]
+        j = torch.floor(at_start / v0 + 1e-6).long().clamp(0, H - 1)
+        j[0] = 0
+        return seqs[:, j]
+
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
         """``[N]``: how much the rows disagree on each candidate's *effect*, its positions minus explore's
@@ -277,7 +303,8 @@ class RetimingPlanner(MPCPlannerBase):
         explore_action = int(seqs[explore, 0])
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None
-        cost, pos = self.costs(root, seqs)  # [M, N], [M, N, H, 2]
+        imagined = self.distance_steps(root, seqs, explore) if self.by_distance else seqs
+        cost, pos = self.costs(root, imagined)  # [M, N], [M, N, H, 2]
         spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
         base = explore
@@ -289,7 +316,7 @@ class RetimingPlanner(MPCPlannerBase):
         ok = (gain.mean(0) > need) & ((gain > need).to(cost.dtype).mean(0) >= self.agree)
         ok &= torch.isfinite(mean)
         if self.in_order and hasattr(self.env, "dropped"):  # a prompt said where the driver drops it is one skipped
-            dropped = self.env.dropped(root, seqs // self.playbacks)  # [N]
+            dropped = self.env.dropped(root, imagined // self.playbacks)  # [N]
             ok &= dropped <= dropped[explore]
         if not self.prepare_early:  # a "prepare" no earlier than explore's: only the "turn" is re-timed
             first = seqs[:, 0] // self.playbacks

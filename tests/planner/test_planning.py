@@ -350,3 +350,33 @@ def test_planner_options_parse_json_values_and_name_the_allowed_keys():
                        ("rescue=8", "options: horizon"), ("route_goals=true", "options: horizon")):
         with pytest.raises(ValueError, match=match):
             parse_planner_options("retime", [bad])
+
+
+def test_by_distance_a_candidate_says_its_prompts_where_the_plan_does_in_metres_not_in_steps():
+    # a car imagined at twice (half) the plan's speed reaches the plan's step j at step j / 2 (2 j): by distance,
+    # explore's "prepare" due at the plan's step 4 is said at step 2 (8), and the first action is never moved
+    from pernav.model.egocentric import VX, X
+
+    from pernav.model.driver import DriverImaginedEnv
+
+    class Straight(DriverImaginedEnv):  # the imagined car drives along x at ``v`` m/s from x = 0, whatever it is told
+        def __init__(self, v: float) -> None:
+            super().__init__()
+            self.v = v
+
+        def imagine(self, root, seqs, **_):
+            H = seqs.shape[1]
+            x = self.v * torch.arange(1, H + 1, dtype=torch.float32)
+            pos = torch.stack([x, torch.zeros(H)], -1).expand(2, seqs.shape[0], H, 2)
+            return pos, pos
+
+    root = _root()
+    root["history"][-1, X], root["history"][-1, X + 1], root["history"][-1, VX], root["history"][-1, VX + 1] = 0, 0, 5, 0
+    plan = torch.tensor([[0, 0, 0, 0, 4, 4, 4, 4, 2, 2, 2, 2]])
+    fast = RetimingPlanner(Straight(10.0), horizon=12, by_distance=True).distance_steps(root, plan, 0)
+    slow = RetimingPlanner(Straight(2.5), horizon=12, by_distance=True).distance_steps(root, plan, 0)
+    assert fast.tolist() == [[0, 0, 4, 4, 2, 2, 2, 2, 2, 2, 2, 2]]  # the plan's steps 0, 2, 4, ... (the last held)
+    assert slow.tolist() == [[0, 0, 0, 0, 0, 0, 0, 0, 4, 4, 4, 4]]  # steps 0, 0, 1, 1, 2, 2, ...
+    assert RetimingPlanner(Straight(5.0), horizon=12).distance_steps(root, plan, 0).tolist() == plan.tolist()
+    root["history"][-1, VX] = 0.0  # stopped: explore's plan does not move on, nor does the reading
+    assert RetimingPlanner(Straight(10.0), horizon=12).distance_steps(root, plan, 0).tolist() == plan.tolist()

@@ -9,7 +9,7 @@ cost is checked against the study's own (``replay_matches``): the replay restore
 as the study recorded them (rounded to 4 digits), but not that round's meta model P (the study keeps the last one),
 which the drive's own updates and the imagination's spread read, so a replay is not always the study's drive.
 
-    .venv/bin/python docs/research/scripts/departure_kinds.py runs/STUDY Town1 [--json FILE]
+    .venv/bin/python docs/research/scripts/departure_kinds.py runs/STUDY Town1 [--json FILE] [--by-distance]
 """
 
 from __future__ import annotations
@@ -100,10 +100,18 @@ def main() -> None:
     parser.add_argument("study")
     parser.add_argument("town")
     parser.add_argument("--json", default=None, help="each kind's episodes and paired cost (explore - adapt_driver)")
+    parser.add_argument("--by-distance", action="store_true",
+                        help="replay with the planner's by_distance option (RetimingPlanner; off in the study)")
     args = parser.parse_args()
     torch.set_num_threads(1)
+
+    def by_distance(policy, env):
+        policy.planner.by_distance = True
+        return policy
+
     episodes: list[dict] = []
-    for label, route, trajectory, explore_cost, study_cost in replays(args.study, args.town):
+    for label, route, trajectory, explore_cost, study_cost in replays(args.study, args.town,
+                                                                     by_distance if args.by_distance else None):
         actions = trajectory["action"].reshape(-1).tolist()
         explore = trajectory["explore_action"].reshape(-1).tolist()
         futures = trajectory["explore_future"].long().tolist()
@@ -116,8 +124,8 @@ def main() -> None:
         print(f"{n:5d}  {name}")
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"study": Path(args.study).name, "town": args.town, **summary(episodes), "episodes": episodes},
-                      f, indent=1)
+            json.dump({"study": Path(args.study).name, "town": args.town, "by_distance": args.by_distance,
+                       **summary(episodes), "episodes": episodes}, f, indent=1)
 
 
 if __name__ == "__main__":
