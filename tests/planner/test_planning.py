@@ -355,9 +355,8 @@ def test_planner_options_parse_json_values_and_name_the_allowed_keys():
 def test_by_distance_a_candidate_says_its_prompts_where_the_plan_does_in_metres_not_in_steps():
     # a car imagined at twice (half) the plan's speed reaches the plan's step j at step j / 2 (2 j): by distance,
     # explore's "prepare" due at the plan's step 4 is said at step 2 (8), and the first action is never moved
-    from pernav.model.egocentric import VX, X
-
     from pernav.model.driver import DriverImaginedEnv
+    from pernav.model.egocentric import VX, X
 
     class Straight(DriverImaginedEnv):  # the imagined car drives along x at ``v`` m/s from x = 0, whatever it is told
         def __init__(self, v: float) -> None:
