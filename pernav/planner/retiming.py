@@ -196,7 +196,10 @@ class RetimingPlanner(MPCPlannerBase):
             no candidate drops more of them than explore's plan (a prompt said where it is dropped is one skipped).
         prepare_early: a "prepare" may be said before explore says it. ``False``: a candidate that says a "prepare"
             now where explore's plan does not is refused, so only the "turn" (and silences) are re-timed.
-        by_distance: read each candidate's steps as distances (an option, off by default; nineteenth session).
+
+    Attributes:
+        by_distance: read each candidate's steps as distances (set it on a planner: off by default, not kept;
+            nineteenth session).
             Explore's plan is imagined at the car's speed now, so where the car speeds up or slows explore says its
             prompts steps earlier or later than its plan (docs/adapt_driver.md). With this option, step ``h`` of every
             candidate plays the plan's step that the car, driving explore's plan in the imagination (the rows' mean),
@@ -204,14 +207,16 @@ class RetimingPlanner(MPCPlannerBase):
             The first step (the action played) is unchanged.
     """
 
+    by_distance: bool = False
+
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
-                 in_order: bool = False, prepare_early: bool = True, by_distance: bool = False) -> None:
+                 in_order: bool = False, prepare_early: bool = True) -> None:
         super().__init__(env, action_key="action")
         if horizon < 1 or advance < 0 or delay < 0:
             raise ValueError(f"need horizon >= 1 and advance, delay >= 0; got {horizon}, {advance}, {delay}")
         self.horizon, self.advance, self.delay, self.in_order = int(horizon), int(advance), int(delay), bool(in_order)
-        self.prepare_early, self.by_distance = bool(prepare_early), bool(by_distance)
+        self.prepare_early = bool(prepare_early)
         self.route_weight, self.progress_weight = float(route_weight), float(progress_weight)
         self.departure = departure = departure if departure is not None else Departure()
         self.margin, self.rel_margin, self.agree = departure.margin, departure.rel_margin, departure.agree

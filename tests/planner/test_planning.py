@@ -372,8 +372,8 @@ def test_by_distance_a_candidate_says_its_prompts_where_the_plan_does_in_metres_
     root = _root()
     root["history"][-1, X], root["history"][-1, X + 1], root["history"][-1, VX], root["history"][-1, VX + 1] = 0, 0, 5, 0
     plan = torch.tensor([[0, 0, 0, 0, 4, 4, 4, 4, 2, 2, 2, 2]])
-    fast = RetimingPlanner(Straight(10.0), horizon=12, by_distance=True).distance_steps(root, plan, 0)
-    slow = RetimingPlanner(Straight(2.5), horizon=12, by_distance=True).distance_steps(root, plan, 0)
+    fast = RetimingPlanner(Straight(10.0), horizon=12).distance_steps(root, plan, 0)
+    slow = RetimingPlanner(Straight(2.5), horizon=12).distance_steps(root, plan, 0)
     assert fast.tolist() == [[0, 0, 4, 4, 2, 2, 2, 2, 2, 2, 2, 2]]  # the plan's steps 0, 2, 4, ... (the last held)
     assert slow.tolist() == [[0, 0, 0, 0, 0, 0, 0, 0, 4, 4, 4, 4]]  # steps 0, 0, 1, 1, 2, 2, ...
     assert RetimingPlanner(Straight(5.0), horizon=12).distance_steps(root, plan, 0).tolist() == plan.tolist()
