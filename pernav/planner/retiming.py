@@ -239,10 +239,13 @@ class RetimingPlanner(MPCPlannerBase):
     def costs(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``[M, N]`` cost of each sequence for each row of the env's imagination, and the imagined positions
         ``[M, N, H, 2]``."""
-        params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
-        kwargs = {} if params is None else {"params": params}
-        pos, goal = self.env.imagine(root, seqs, **kwargs)  # [M, N, H, 2]
+        pos, goal = self._imagine(root, seqs)  # [M, N, H, 2]
         return self.score(root, pos, goal), pos
+
+    def _imagine(self, root: TensorDictBase, seqs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The env's imagination of ``seqs`` from ``root`` with the planner's parameters (an ensemble), if any."""
+        params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
+        return self.env.imagine(root, seqs, **({} if params is None else {"params": params}))
 
     def score(self, root: TensorDictBase, pos: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """``[M, N]``: the planner's cost of positions and goals ``[M, N, H, 2]`` from ``root`` (imagined or driven)."""
@@ -265,15 +268,13 @@ class RetimingPlanner(MPCPlannerBase):
         v0 = float(torch.hypot(hist[-1, VX], hist[-1, VY]))
         if v0 < 0.5:
             return seqs
-        params = self.params if isinstance(self.params, list) or self.params is None else [self.params]
-        pos, _ = self.env.imagine(root, seqs[explore:explore + 1], **({} if params is None else {"params": params}))
+        pos, _ = self._imagine(root, seqs[explore:explore + 1])
         path = pos[:, 0].mean(0).double()  # [H, 2]
         start = hist[-1, [X, Y]].double()
         moved = torch.cat([path[:1] - start[None], path[1:] - path[:-1]]).norm(dim=-1).cumsum(0)  # by each step's end
         at_start = torch.cat([moved.new_zeros(1), moved[:-1]])  # driven when each step starts
         H = seqs.shape[1]
-        j = torch.floor(at_start / v0 + 1e-6).long().clamp(0, H - 1)
-        j[0] = 0
+        j = torch.floor(at_start / v0 + 1e-6).long().clamp(0, H - 1)  # 0 at the first step: the action played
         return seqs[:, j]
 
     @staticmethod
