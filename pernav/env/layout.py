@@ -12,3 +12,7 @@ STATE_DIM = len(STATE_KEYS)
 
 ROUTE_SPACING = 3.0  # m between the points of ``route_ahead``
 ROUTE_BEHIND = 15.0  # m of route behind the car included in ``route_ahead``
+#: the speeds (m/s) and the points ahead (every ``ROUTE_SPACING`` m from the car) of the explore table, what explore's
+#: rule says at each (:func:`pernav.env.planning.explore_table`; the env's ``explore_table`` option)
+EXPLORE_SPEEDS = (2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0, 18.0, 20.0)
+EXPLORE_POINTS = 81

@@ -25,8 +25,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from pernav.env.layout import STATE_DIM
-from pernav.env.planning import action_mask, explore_plan, plan_goals, route_ahead
+from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS, STATE_DIM
+from pernav.env.planning import action_mask, explore_plan, explore_table, plan_goals, route_ahead
 from pernav.env.policies import (
     BeliefSource,
     NavView,
@@ -76,6 +76,10 @@ DEFAULT_CONFIG: dict[str, Any] = {
     "plan_shift": 2,  # explore-plan time shifts the planner may match (steps each way)
     "future_steps": 18,  # steps of the explore policy's future plan in info (the re-timing planner's input)
     "route_points": 96,  # points of the planned route ahead in info (every 3 m from 15 m behind the car)
+    # info also carries "explore_table": what explore's rule says at each of the layout's EXPLORE_SPEEDS and
+    # EXPLORE_POINTS ahead (a planner that imagines explore closed loop reads it; zeros where explore's plan holds no
+    # prompt); off by default: it costs a few ms a step
+    "explore_table": False,
     # what the navigation believes of its user (a mapping of Driver fields over the average driver's, e.g. a
     # learner's estimate of its reaction and decision times): info then carries "belief_action", the explore
     # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. A BeliefSource (e.g.
@@ -471,12 +475,17 @@ class NavigationEnv(gym.Env):
         full = explore_plan(self._explore, view, self._explore_past, max(H, F - S), S)
         plan, future = full[: H + 2 * S], full[S: S + F]
         playbacks = N_PLAYBACKS if self.config["adaptive_speed"] else 1
+        table = {}
+        if self.config["explore_table"]:  # only where a prompt is ahead in the plan: elsewhere no planner searches
+            table["explore_table"] = explore_table(self._explore, view) if bool(future.any()) else \
+                np.zeros((len(EXPLORE_SPEEDS), EXPLORE_POINTS), dtype=np.int64)
         return {
             "plan_goals": plan_goals(self.route, self.progress, speed, H),
             "explore_plan": plan,
             "action_mask": action_mask(self.route, self.progress, speed, in_roundabout, plan, H, S, playbacks),
             "explore_future": future,
             "route_ahead": route_ahead(self.route, self.progress, int(self.config["route_points"])),
+            **table,
         }
 
     def render(self):

@@ -29,12 +29,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from pernav.env.layout import ROUTE_BEHIND, ROUTE_SPACING
+from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS, ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
 from pernav.world.constants import GOAL_LOOKAHEAD_S, N_INSTRUCTIONS, WAYPOINT_SPACING, Instruction
 from pernav.world.routing import Route
 
-__all__ = ["RING_REACH", "TURN_REACH", "allowed_instructions", "explore_plan", "plan_goals", "route_ahead"]
+__all__ = ["RING_REACH", "TURN_REACH", "allowed_instructions", "explore_plan", "explore_table", "plan_goals",
+           "route_ahead"]
 
 TURN_REACH = 200.0  # m: a junction further than this is not "ahead within reach" (covers explore's "prepare")
 RING_REACH = 150.0  # m: "near a roundabout"
@@ -73,6 +74,24 @@ def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: 
         last = action
         plan.append(action)
     return np.asarray(plan, dtype=np.int64)
+
+
+def explore_table(policy: PromptPolicy, view: NavView, speeds: tuple[float, ...] = EXPLORE_SPEEDS,
+                  points: int = EXPLORE_POINTS, spacing: float = ROUTE_SPACING) -> np.ndarray:
+    """``[len(speeds), points]``: what ``policy`` says with the car ``j * spacing`` m further along its route at each
+    speed, with what it has said so far (``view``'s log and last action). A planner reads explore's rule off it for a
+    car it imagines, at that car's speed and place (explore's plan, :func:`explore_plan`, assumes the speed now).
+
+    >>> import gymnasium as gym
+    >>> import pernav
+    >>> from pernav.env.policies import explore_policy
+    >>> env = gym.make("pernav/Town1-v0")
+    >>> _ = env.reset(seed=0, options={"route": 0})
+    >>> explore_table(explore_policy(), env.unwrapped.nav_view()).shape
+    (10, 81)
+    """
+    return np.asarray([[policy(replace(view, progress=view.progress + j * spacing, speed=float(v)))
+                        for j in range(points)] for v in speeds], dtype=np.int64)
 
 
 def allowed_instructions(route: Route, progress: float, in_roundabout: bool) -> np.ndarray:

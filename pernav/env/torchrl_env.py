@@ -28,6 +28,7 @@ from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs import EnvBase, GymWrapper
 from torchrl.envs.gym_like import BaseInfoDictReader
 
+from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS
 from pernav.env.navigation import FRAME_KEYS, NavigationEnv
 
 __all__ = [
@@ -175,7 +176,9 @@ def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tupl
     """Shapes and dtypes of the array entries of ``info``: the planning context (see :mod:`pernav.env.planning`) and
     the car's frames between decisions."""
     H, S = int(config["plan_horizon"]), int(config["plan_shift"])
-    return {
+    table = {"explore_table": ((len(EXPLORE_SPEEDS), EXPLORE_POINTS), torch.int64)} if config.get("explore_table") \
+        else {}
+    return {**table,
         "plan_goals": ((H, 2), torch.float32),
         "explore_plan": ((H + 2 * S,), torch.int64),
         "action_mask": ((H, n_actions), torch.bool),

@@ -165,42 +165,44 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
-    ``[M, 1]`` and each sequence; and each played "turn"'s window in effect ``[M, N, T]``: from its effect until the
-    next "turn", "prepare" or "keep left" is said (a newer instruction supersedes it as soon as it is said; ``inf`` if
-    none).
+    ``[M, 1]`` and each sequence (``[N, H]``, or ``[M, N, H]``: each row's own); and each played "turn"'s window in
+    effect ``[M, N, T]``: from its effect until the next "turn", "prepare" or "keep left" is said (a newer instruction
+    supersedes it as soon as it is said; ``inf`` if none).
     A "turn" or "prepare" said before ``dropped_before`` (s) does not count: the driver drops what it heard when it
     enters a junction (it was meant for that one). One of ``other_side`` (the side the route does not turn to) names
     the other branch: it neither chooses nor prepares the route's, and a "turn" of that side supersedes the route's."""
-    N = sequences.shape[0]
+    seqs = sequences if sequences.dim() == 3 else sequences.unsqueeze(0)  # [S, N, H]: S = 1 or one per row
+    S, N = seqs.shape[:2]
     # the prompts played: the history's (steps -K+1..-1) then the sequence's (steps 0..H-1); a repeat is held
     past = hist[:-1, STATE_DIM:STATE_DIM + N_INSTRUCTIONS]
     past_actions = torch.where(past.any(-1), past.argmax(-1), torch.zeros(len(past), dtype=torch.long))
-    actions = torch.cat([past_actions.expand(N, -1), sequences.long()], 1)  # [N, K-1+H]
-    starts = torch.arange(actions.shape[1], dtype=torch.float64) - len(past_actions)  # step start times
-    previous = torch.cat([torch.zeros(N, 1, dtype=torch.long), actions[:, :-1]], 1)
+    actions = torch.cat([past_actions.expand(S, N, -1), seqs.long()], -1)  # [S, N, K-1+H]
+    starts = torch.arange(actions.shape[-1], dtype=torch.float64) - len(past_actions)  # step start times
+    previous = torch.cat([torch.zeros(S, N, 1, dtype=torch.long), actions[..., :-1]], -1)
     played = (actions != Instruction.NONE) & (actions != previous)
-    effect = starts + _audio(actions)  # [N, T] heard at the audio's end...
-    effect = effect.unsqueeze(0) + reaction.unsqueeze(-1)  # [M, N, T] ...and acted on a reaction later
+    effect = starts + _audio(actions)  # [S, N, T] heard at the audio's end...
+    effect = effect + reaction.unsqueeze(-1)  # [M, N, T] ...and acted on a reaction later
     # a prompt of the history is for the junction ahead only if it was said within reach of it (else it was the last
     # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back
     reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
-    ours = ~torch.isin(actions, torch.tensor(other_side, dtype=torch.long))  # [N, T] not the other side's
-    prepare = (torch.isin(actions, torch.tensor(PREPARES)) & ours).unsqueeze(0)  # [1, N, T]
+    ours = ~torch.isin(actions, torch.tensor(other_side, dtype=torch.long))  # [S, N, T] not the other side's
+    prepare = torch.isin(actions, torch.tensor(PREPARES)) & ours
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
-    turn = (torch.isin(actions, torch.tensor(TURNS)) & ours).unsqueeze(0)
-    dropped = (turn | prepare)[0] & (starts < dropped_before)
-    effect = torch.where((played & reach & ~dropped).unsqueeze(0), effect, torch.full_like(effect, math.inf))
+    turn = torch.isin(actions, torch.tensor(TURNS)) & ours
+    dropped = (turn | prepare) & (starts < dropped_before)
+    effect = torch.where(played & reach & ~dropped, effect, torch.full_like(effect, math.inf))
     turn_from = torch.where(turn, effect, torch.full_like(effect, math.inf))  # [M, N, T]
     first_turn = turn_from.min(-1).values  # [M, N]
     first_prepare = torch.where(prepare, effect, torch.full_like(effect, math.inf)).min(-1).values
     # a "turn" holds until the next "turn", "prepare" or "keep left" is said: the driver acts on the latest it heard (a
     # "prepare" after a "turn" says the turn is still to come)
-    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, *PREPARES, Instruction.KEEP_LEFT)))  # [N, T]
-    said = torch.where(supersedes, starts.expand(N, -1), torch.full_like(effect[0], math.inf))
+    supersedes = played & torch.isin(actions, torch.tensor((*TURNS, *PREPARES, Instruction.KEEP_LEFT)))  # [S, N, T]
+    said = torch.where(supersedes, starts.expand_as(supersedes), torch.full(supersedes.shape, math.inf,
+                                                                            dtype=torch.float64))
     # the first superseding start after each prompt's own: a reversed running minimum over the later ones
-    later = torch.cat([said[:, 1:], torch.full_like(said[:, :1], math.inf)], 1)
-    turn_until = later.flip(1).cummin(1).values.flip(1)  # [N, T]
-    return first_turn, first_prepare, turn_from, turn_until.unsqueeze(0).expand_as(turn_from)
+    later = torch.cat([said[..., 1:], torch.full_like(said[..., :1], math.inf)], -1)
+    turn_until = later.flip(-1).cummin(-1).values.flip(-1)  # [S, N, T]
+    return first_turn, first_prepare, turn_from, turn_until.expand_as(turn_from)
 
 
 def _directions(route: torch.Tensor, s_junction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -291,9 +293,9 @@ def _positions(route: torch.Tensor, s_junction: float, s_all: torch.Tensor, take
 def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.Tensor
                   ) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``([M, N, H, 2], [M, N, H, 2])`` of the car after each step of each action sequence
-    ``[N, H]`` (7 instructions) from ``root``, for ``M`` rows of ``drivers`` ``[M, 10]``: the eight
-    :class:`DriverParams` fields, whether a "prepare" alone chooses the branch (0 or 1) and the row's reaction-time
-    quantile ``z``.
+    ``[N, H]`` (7 instructions; or ``[M, N, H]``, each row's own, as a policy played closed loop gives) from ``root``,
+    for ``M`` rows of ``drivers`` ``[M, 10]``: the eight :class:`DriverParams` fields, whether a "prepare" alone chooses
+    the branch (0 or 1) and the row's reaction-time quantile ``z``.
 
     ``root`` holds ``"history"`` ``[K, 14 + 7]`` (the prompts of the last ``K - 1`` steps and the car now),
     ``"route_ahead"`` ``[P, 2]`` and ``"distance_to_junction"`` (what the navigation env provides)."""
@@ -303,8 +305,10 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # on the ring, the exit ahead is the route's where the route leaves the ring there; where it passes the exit, a
     # turn in effect when the driver commits leaves the route (a wrong exit), none keeps to it
     passing = in_ring and _stays_on_ring(route, s_first)
-    N, H = sequences.shape
+    N, H = sequences.shape[-2:]
     M = drivers.shape[0]
+    if sequences.dim() == 3 and sequences.shape[0] != M:
+        raise ValueError(f"sequences: one per row needs [{M}, N, H] for {M} rows, got {list(sequences.shape)}")
     drivers = drivers.double()
     R, D, sigma = (drivers[:, k].reshape(M, 1) for k in range(3))
     follow, z = drivers[:, 8].reshape(M, 1), drivers[:, 9].reshape(M, 1)

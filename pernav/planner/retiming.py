@@ -46,6 +46,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -54,10 +55,10 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.modules.planners import MPCPlannerBase
 
-from pernav.env.layout import ROUTE_SPACING, STATE_DIM
+from pernav.env.layout import EXPLORE_SPEEDS, ROUTE_SPACING, STATE_DIM
 from pernav.model.egocentric import GX, GY, VX, VY, X, Y
 from pernav.planner.discrete import planning_roots
-from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_PLAYBACKS, PREPARES, Instruction
+from pernav.world.constants import N_ADAPTIVE_ACTIONS, N_INSTRUCTIONS, N_PLAYBACKS, PREPARES, Instruction
 from pernav.world.cost import tracking_cost
 
 __all__ = ["Departure", "RetimedExplore", "RetimingPlanner", "RetimingResult", "ShiftedExplore", "candidate_plans"]
@@ -205,9 +206,16 @@ class RetimingPlanner(MPCPlannerBase):
             candidate plays the plan's step that the car, driving explore's plan in the imagination (the rows' mean),
             has reached by then at the plan's speed: a prompt said where the plan says it, in metres, not in steps.
             The first step (the action played) is unchanged.
+        closed_loop: imagine explore's plan and its advances closed loop (set it on a planner: off by default;
+            twentieth session). Candidate "explore ``k`` steps early" plays its first action, then at each step what
+            explore's rule says (the env's ``"explore_table"``) ``k`` steps ahead of the imagined car at its imagined
+            speed, as :class:`ShiftedExplore` does on the real car; so the base the planner must beat is explore as it
+            plays, not its plan at the speed now. Iterated: each row's imagined car gives its prompts, and they the car.
     """
 
     by_distance: bool = False
+    closed_loop: bool = False
+    closed_passes: int = 2  # re-imaginations with the prompts read off the car imagined the pass before
 
     def __init__(self, env, horizon: int = 12, advance: int = 6, delay: int = 0, route_weight: float = 1.0,
                  progress_weight: float = 1.0, departure: Departure | None = None, playbacks: int | None = None,
@@ -277,6 +285,70 @@ class RetimingPlanner(MPCPlannerBase):
         j = torch.floor(at_start / v0 + 1e-6).long().clamp(0, H - 1)  # 0 at the first step: the action played
         return seqs[:, j]
 
+    def shifts(self, root: TensorDictBase, seqs: torch.Tensor) -> torch.Tensor:
+        """``[N]``: for each candidate (action space), the ``k`` (0..advance) for which it is explore's plan ``k`` steps
+        early, or -1 (a fine choice held, or a delay: imagined as it is)."""
+        future = root["explore_future"].long()
+        H = seqs.shape[1]
+        future = torch.cat([future, future[-1:].expand(H + self.advance)])
+        instr = seqs // self.playbacks
+        out = torch.full((seqs.shape[0],), -1, dtype=torch.long)
+        for k in range(self.advance, -1, -1):  # the smallest k wins
+            out = torch.where((instr == future[k:k + H]).all(-1), k, out)
+        return out
+
+    def closed_sequences(self, root: TensorDictBase, seqs: torch.Tensor, pos: torch.Tensor, shifts: torch.Tensor
+                         ) -> torch.Tensor:
+        """``[M, N, H]``: each row's prompts when the candidates with a shift ``k`` >= 0 play explore's rule ``k`` steps
+        ahead of the car imagined at ``pos`` ``[M, N, H, 2]`` (after its first action, which stays the candidate's), at
+        its imagined speed: explore's table at the car's place plus ``k`` steps at that speed, the nearest of its
+        speeds. As explore's rule does, a prompt said in the imagination is not said again once another was said after
+        it, until the car passes the junction ahead; the others are ``seqs`` as they are."""
+        table = root["explore_table"].long()  # [V, P]
+        speeds = torch.tensor(EXPLORE_SPEEDS, dtype=torch.float64)
+        hist = root["history"]
+        start = hist[-1, [X, Y]].double()
+        v0 = float(torch.hypot(hist[-1, VX], hist[-1, VY]))
+        p = pos.double()
+        M, N, H = p.shape[:3]
+        step = torch.cat([(p[:, :, :1] - start).norm(dim=-1), (p[:, :, 1:] - p[:, :, :-1]).norm(dim=-1)], -1)
+        at = torch.cat([step.new_zeros(M, N, 1), step[..., :-1].cumsum(-1)], -1)  # m driven when each step starts
+        # its speed then: the mean of the steps either side (each step's length is its mean speed, at its middle)
+        v = torch.cat([step.new_full((M, N, 1), v0), (step[..., :-1] + step[..., 1:]) / 2], -1)
+        k = shifts.clamp(min=0).to(torch.float64)[None, :, None]
+        ahead = torch.round((at + k * v) / ROUTE_SPACING).long()
+        vi = (v.unsqueeze(-1) - speeds).abs().argmin(-1)
+        desired = torch.where(ahead < table.shape[1], table[vi, ahead.clamp(max=table.shape[1] - 1)], 0)
+        junction = float(root["distance_to_junction"]) if "distance_to_junction" in root.keys() else math.inf
+        instr = (seqs // self.playbacks).expand(M, N, H).clone()
+        playback = seqs[:, :1] % self.playbacks
+        said = torch.zeros(M, N, N_INSTRUCTIONS, dtype=torch.bool)  # (silence marked too: it is never "again")
+        said.scatter_(-1, instr[..., :1], True)
+        for h in range(1, H):
+            said &= ~(at[..., h] > junction).unsqueeze(-1)  # past the junction: its prompts are forgotten
+            a = desired[..., h]
+            again = said.gather(-1, a.unsqueeze(-1))[..., 0] & (a != instr[..., h - 1])
+            a = torch.where(again, 0, a)
+            instr[..., h] = a
+            said.scatter_(-1, a.unsqueeze(-1), True)
+        closed = instr * self.playbacks + (playback if self.playbacks > 1 else 0)
+        return torch.where((shifts >= 0)[None, :, None], closed, seqs.expand(M, N, H))
+
+    def imagine_closed(self, root: TensorDictBase, seqs: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Positions and goals ``[M, N, H, 2]`` of the candidates ``seqs`` ``[N, H]`` with explore's rule played
+        closed loop (:attr:`closed_loop`), and the prompts each row played ``[M, N, H]``."""
+        if "explore_table" not in root.keys():
+            raise KeyError("closed_loop reads \"explore_table\": make the navigation env with "
+                           "config={\"explore_table\": True}")
+        shifts = self.shifts(root, seqs)
+        pos, goal = self._imagine(root, seqs)
+        played = seqs.expand(pos.shape[0], *seqs.shape)
+        for _ in range(self.closed_passes):
+            played = self.closed_sequences(root, seqs, pos, shifts)
+            pos, goal = self._imagine(root, played)
+        return pos, goal, played
+
     @staticmethod
     def effect_spread(pos: torch.Tensor, explore: int) -> torch.Tensor:
         """``[N]``: how much the rows disagree on each candidate's *effect*, its positions minus explore's
@@ -310,7 +382,11 @@ class RetimingPlanner(MPCPlannerBase):
         if bool((seqs[:, 0] == explore_action).all()):  # receding horizon: only the first action is played
             return explore_action, None
         imagined = self.distance_steps(root, seqs, explore) if self.by_distance else seqs
-        cost, pos = self.costs(root, imagined)  # [M, N], [M, N, H, 2]
+        if self.closed_loop:
+            pos, goal, _ = self.imagine_closed(root, seqs)
+            cost = self.score(root, pos, goal)
+        else:
+            cost, pos = self.costs(root, imagined)  # [M, N], [M, N, H, 2]
         spread = self.effect_spread(pos, explore)
         mean = cost.mean(0)
         base = explore

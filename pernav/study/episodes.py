@@ -39,11 +39,12 @@ def collector(cfg: StudyConfig, seed: int) -> Any:
 
 
 def study_env(cfg: StudyConfig, town: str, entry: Entry, route: int, seed: int, n_actions: int = N_INSTRUCTIONS,
-              belief: dict[str, float] | None = None) -> Any:
+              belief: dict[str, float] | None = None, explore_table: bool = False) -> Any:
     """The history-windowed TorchRL env of a study's cell: ``entry``'s user on ``route`` of ``town``, the study's
-    traffic and planning context, and the env's ``belief`` about the user where a method reads one."""
+    traffic and planning context, and the env's ``belief`` about the user where a method reads one (and explore's
+    table where a planner imagines explore closed loop)."""
     config = {**cfg.world_config(), "adaptive_speed": n_actions == N_ADAPTIVE_ACTIONS,
-              **env_planning_config(cfg.planner)}
+              **env_planning_config(cfg.planner), "explore_table": explore_table}
     if belief is not None:
         config["belief"] = belief
     options = {"route": route, "user": entry.profile(), "context": entry.context()}

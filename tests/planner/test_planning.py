@@ -11,6 +11,7 @@ from pernav.diagnostics import TrueDynamicsEnv
 from pernav.diagnostics.panel import PanelJob, comparison_table, drive_panel_episode
 from pernav.env.navigation import NavigationEnv
 from pernav.model import DynamicsModel
+from pernav.model.driver import DriverImaginedEnv
 from pernav.model.navigation import ImaginedNavigationEnv, make_world_model
 from pernav.planner import Departure, RetimingPlanner, TreeSearchPlanner, build_planner, candidate_plans
 from pernav.study.compare import compare
@@ -379,3 +380,70 @@ def test_by_distance_a_candidate_says_its_prompts_where_the_plan_does_in_metres_
     assert RetimingPlanner(Straight(5.0), horizon=12).distance_steps(root, plan, 0).tolist() == plan.tolist()
     root["history"][-1, VX] = 0.0  # stopped: explore's plan does not move on, nor does the reading
     assert RetimingPlanner(Straight(10.0), horizon=12).distance_steps(root, plan, 0).tolist() == plan.tolist()
+
+
+def _table(prepare: tuple[float, float], turn: tuple[float, float]) -> torch.Tensor:
+    """An explore table that says "prepare right" (4) ``prepare[0] <= x < prepare[1]`` m ahead and "turn right" (2)
+    ``turn[0] <= x < turn[1]`` m ahead, at every speed."""
+    from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS, ROUTE_SPACING
+
+    x = torch.arange(EXPLORE_POINTS) * ROUTE_SPACING
+    row = torch.where((x >= prepare[0]) & (x < prepare[1]), 4, 0)
+    row = torch.where((x >= turn[0]) & (x < turn[1]), 2, row)
+    return row.expand(len(EXPLORE_SPEEDS), -1).clone()
+
+
+def test_closed_loop_says_explores_prompts_where_its_rule_would_on_the_imagined_car():
+    # explore's rule (the table) says "prepare" 30-60 m on and "turn" 60-97 m on. Played closed loop on a car
+    # imagined at 10 m/s it says them at steps 3-5 and 6-9; on one at 5 m/s at steps 6-11 and 12-15; shifted 2 steps
+    # early (a candidate "explore 2 steps early") 20 m sooner; the first action is always the candidate's own
+    from pernav.model.egocentric import VX, X
+
+    def car(speeds: list[float]) -> torch.Tensor:  # [1, 1, H, 2]: positions along x after each step
+        x = torch.tensor(speeds).cumsum(0)
+        return torch.stack([x, torch.zeros_like(x)], -1)[None, None]
+
+    root = _root()
+    root["history"][-1, X], root["history"][-1, X + 1], root["history"][-1, VX], root["history"][-1, VX + 1] = 0, 0, 10, 0
+    root["explore_table"] = _table((30.0, 60.0), (60.0, 97.0))
+    planner = RetimingPlanner(DriverImaginedEnv(), horizon=16, advance=8)
+    seqs = torch.zeros(1, 16, dtype=torch.long)
+    k0, k2 = torch.tensor([0]), torch.tensor([2])
+    fast = planner.closed_sequences(root, seqs, car([10.0] * 16), k0)[0, 0].tolist()
+    assert fast == [0, 0, 0, 4, 4, 4, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0]
+    early = planner.closed_sequences(root, seqs, car([10.0] * 16), k2)[0, 0].tolist()
+    assert early == [0, 4, 4, 4, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0, 0, 0]
+    root["history"][-1, VX] = 5.0
+    slow = planner.closed_sequences(root, seqs, car([5.0] * 16), k0)[0, 0].tolist()
+    assert slow == [0] * 6 + [4] * 6 + [2] * 4
+    # "prepare" said now, 4 steps early; a car that slows hard after the "turn" was said brings the "prepare" back into
+    # reach 4 steps ahead (at step 5): as explore's rule, the closed loop says neither again once another was said
+    root["history"][-1, VX] = 12.0
+    prepare_now = torch.tensor([[4] + [0] * 15])
+    braking = planner.closed_sequences(root, prepare_now, car([12.0] * 4 + [2.0] * 12), torch.tensor([4]))
+    assert braking[0, 0].tolist() == [4, 2, 2, 2, 2] + [0] * 11
+    # a candidate that is no shift of explore's plan (-1: a fine choice held) is imagined as it is
+    held = torch.full((1, 16), 2)
+    assert planner.closed_sequences(root, held, car([10.0] * 16), torch.tensor([-1]))[0, 0].tolist() == [2] * 16
+
+
+def test_closed_loop_needs_the_env_table_and_keeps_the_candidates_first_actions():
+    from pernav.model.driver import DriverParams
+
+    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # a right turn 57 m ahead
+    route[25:, 1] = (torch.arange(71.0) + 1) * 3
+    route[25:, 0] = route[24, 0]
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0
+    future = torch.tensor([0, 0, 4, 4, 4, 2, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0),
+                       "explore_future": future, "action_mask": torch.ones(5, 7, dtype=torch.bool)}, [])
+    planner = RetimingPlanner(DriverImaginedEnv([DriverParams(reaction_time=2.5)]), horizon=16, advance=8,
+                              departure=Departure(margin=-1e9, rel_margin=0.0, agree=1e-9, max_spread=None))
+    planner.closed_loop = True
+    with pytest.raises(KeyError, match="explore_table"):
+        planner.decide(root)
+    root["explore_table"] = _table((15.0, 45.0), (45.0, 57.0))
+    action, result = planner.decide(root)
+    assert result is not None and action == int(result.candidates[result.chosen, 0])
+    assert torch.isfinite(result.costs).all()

@@ -63,11 +63,11 @@ def summary(episodes: list[dict]) -> dict:
                       for name, n in kinds.most_common()}}
 
 
-def replays(folder: str, town: str, policy_hook=None):
+def replays(folder: str, town: str, policy_hook=None, explore_table: bool = False):
     """Each adapt_driver episode of the study at ``folder`` in ``town``, replayed: yields ``(label, route, trajectory,
     explore_cost, study_cost)`` with explore's and adapt_driver's costs as the study recorded them. ``policy_hook(policy,
     env)`` (optional) may wrap the episode's policy (a :class:`~pernav.learners.driver.DriverPlanner`) before the drive
-    and returns the policy to drive."""
+    and returns the policy to drive; ``explore_table``: the env writes explore's table (for ``closed_loop``)."""
     study = FinishedStudy.open(folder)
     results = json.loads((study.folder / "results.json").read_text())
     recorded = {(it["label"], e["route"]): (e["tracking_cost"], a["tracking_cost"])
@@ -89,7 +89,7 @@ def replays(folder: str, town: str, policy_hook=None):
             seed = derive_seed(cfg.seed, town, entry.label, "eval", route)
             tracker = state.tracker("adapt_driver", estimate, response)
             policy = make_policy(EpisodeJob(cfg, town, entry, route, seed, "driver", params=tracker))
-            env = study_env(cfg, town, entry, route, seed)
+            env = study_env(cfg, town, entry, route, seed, explore_table=explore_table)
             if policy_hook is not None:
                 policy = policy_hook(policy, env)
             yield (entry.label, route, drive(env, policy), *recorded[(entry.label, route)])
@@ -102,16 +102,17 @@ def main() -> None:
     parser.add_argument("--json", default=None, help="each kind's episodes and paired cost (explore - adapt_driver)")
     parser.add_argument("--by-distance", action="store_true",
                         help="replay with the planner's by_distance option (RetimingPlanner; off in the study)")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="replay with the planner's closed_loop option (RetimingPlanner; off in the study)")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
-    def by_distance(policy, env):
-        policy.planner.by_distance = True
+    def option(policy, env):
+        policy.planner.by_distance, policy.planner.closed_loop = args.by_distance, args.closed_loop
         return policy
 
     episodes: list[dict] = []
-    for label, route, trajectory, explore_cost, study_cost in replays(args.study, args.town,
-                                                                     by_distance if args.by_distance else None):
+    for label, route, trajectory, explore_cost, study_cost in replays(args.study, args.town, option, args.closed_loop):
         actions = trajectory["action"].reshape(-1).tolist()
         explore = trajectory["explore_action"].reshape(-1).tolist()
         futures = trajectory["explore_future"].long().tolist()
@@ -125,6 +126,7 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"study": Path(args.study).name, "town": args.town, "by_distance": args.by_distance,
+                       "closed_loop": args.closed_loop,
                        **summary(episodes), "episodes": episodes}, f, indent=1)
 
 

@@ -8,8 +8,14 @@ online rounds, the study's own seeds) and, for every step and every prompt the p
 said it later than its plan, < 0: earlier). Per town: how often the plan is right, the errors' distribution by ``h``,
 and by whether the car sped up or slowed meanwhile.
 
+With ``--closed-loop`` the same for the re-timing planner's ``closed_loop`` reading of explore (twentieth session):
+explore's rule read off the env's explore table closed loop, on the car's real positions over the next 16 steps
+(``table_on_real_car``: does the table and its said-once rule give explore's prompts?) and on the car the hybrid
+model imagines (``table_on_imagined_car``: the model's default driver, its cruise the drive's fastest speed so far,
+the median row).
+
     .venv/bin/python docs/research/scripts/explore_plan_error.py Town3 [--preset paper] [--seed 10] [--rounds 5]
-        [--json FILE]
+        [--closed-loop] [--json FILE]
 """
 
 from __future__ import annotations
@@ -23,17 +29,20 @@ import statistics
 import torch
 
 from pernav.env.torchrl_env import explore_module
-from pernav.model.egocentric import VX, VY
+from pernav.model.driver import DriverImaginedEnv, DriverParams
+from pernav.model.egocentric import VX, VY, X, Y
+from pernav.planner.retiming import RetimingPlanner
 from pernav.study.config import preset
 from pernav.study.episodes import study_env
 from pernav.trainer.collect import derive_seed, drive
 from pernav.world.constants import PREPARES, TURNS
 
 
-def plan_errors(trajectory) -> list[dict]:
-    """Each (step, prompt the plan says ``h`` steps ahead): the steps explore actually took to say it, minus ``h``."""
+def plan_errors(trajectory, futures: list[list[int]] | None = None) -> list[dict]:
+    """Each (step, prompt the plan says ``h`` steps ahead): the steps explore actually took to say it, minus ``h``.
+    ``futures``: each step's plan (default: the env's ``explore_future``)."""
     said = trajectory["explore_action"].reshape(-1).tolist()
-    futures = trajectory["explore_future"].long().tolist()
+    futures = trajectory["explore_future"].long().tolist() if futures is None else futures
     obs = trajectory["observation"]
     speed = torch.hypot(obs[:, VX], obs[:, VY]).tolist()
     prompts = set(TURNS) | set(PREPARES)
@@ -50,6 +59,32 @@ def plan_errors(trajectory) -> list[dict]:
         out.append({"h": h, "error": actual - h, "prompt": int(p),
                     "speed_change": round(speed[min(t + actual, len(speed) - 1)] - speed[t], 2)})
     return out
+
+
+def closed_futures(trajectory, horizon: int = 16) -> tuple[list[list[int]], list[list[int]]]:
+    """Each step's explore read closed loop off the explore table: on the car's real next positions, and on the car
+    the hybrid model imagines (its median row). Steps with no prompt in the plan keep the plan."""
+    planner = RetimingPlanner(DriverImaginedEnv(), horizon=horizon, advance=0)
+    obs = trajectory["next", "observation"]
+    T = obs.shape[0]
+    speed = torch.hypot(trajectory["observation"][:, VX], trajectory["observation"][:, VY])
+    real, imagined = [], []
+    for t in range(T):
+        root = trajectory[t]
+        future = root["explore_future"].long()
+        plan = future[:horizon]
+        if not bool(future.any()):
+            real.append(future.tolist())
+            imagined.append(future.tolist())
+            continue
+        idx = torch.arange(t, t + horizon).clamp(max=T - 1)
+        pos = obs[idx][:, [X, Y]][None, None]
+        shift = torch.zeros(1, dtype=torch.long)
+        real.append(planner.closed_sequences(root, plan[None], pos, shift)[0, 0].tolist())
+        planner.env.drivers = [DriverParams(cruise=max(float(speed[: t + 1].max()), 5.0))]
+        _, _, played = planner.imagine_closed(root, plan[None])
+        imagined.append(played[played.shape[0] // 2 + 2, 0].tolist())  # follow a "prepare", median reaction
+    return real, imagined
 
 
 def summary(rows: list[dict]) -> dict:
@@ -74,19 +109,28 @@ def main() -> None:
     parser.add_argument("--preset", default="paper")
     parser.add_argument("--seed", type=int, default=10)
     parser.add_argument("--rounds", type=int, default=5, help="the first N online rounds (default 5)")
+    parser.add_argument("--closed-loop", action="store_true", help="also explore read closed loop off its table")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     torch.set_num_threads(1)
     cfg = dataclasses.replace(preset(args.preset), seed=args.seed, towns=[args.town])
     entries = [e for e in cfg.schedule if e.phase != "offline"][: args.rounds]
-    rows = []
+    rows, real, imagined = [], [], []
     for entry in entries:
         for route in range(cfg.routes):
             seed = derive_seed(cfg.seed, args.town, entry.label, "eval", route)
-            rows += plan_errors(drive(study_env(cfg, args.town, entry, route, seed), explore_module()))
+            trajectory = drive(study_env(cfg, args.town, entry, route, seed, explore_table=args.closed_loop),
+                               explore_module())
+            rows += plan_errors(trajectory)
+            if args.closed_loop:
+                on_real, on_imagined = closed_futures(trajectory)
+                real += plan_errors(trajectory, on_real)
+                imagined += plan_errors(trajectory, on_imagined)
         print(entry.label, json.dumps(summary(rows)["all"]), flush=True)
     out = {"town": args.town, "preset": args.preset, "seed": args.seed, "rounds": [e.label for e in entries],
            **summary(rows)}
+    if args.closed_loop:
+        out |= {"table_on_real_car": summary(real), "table_on_imagined_car": summary(imagined)}
     print(json.dumps(out, indent=1))
     if args.json:
         with open(args.json, "w") as f:
