@@ -279,11 +279,16 @@ class RetimingPlanner(MPCPlannerBase):
         pos, _ = self._imagine(root, seqs[explore:explore + 1])
         path = pos[:, 0].mean(0).double()  # [H, 2]
         start = hist[-1, [X, Y]].double()
-        moved = torch.cat([path[:1] - start[None], path[1:] - path[:-1]]).norm(dim=-1).cumsum(0)  # by each step's end
+        moved = self._steps(start, path).cumsum(0)  # by each step's end
         at_start = torch.cat([moved.new_zeros(1), moved[:-1]])  # driven when each step starts
         H = seqs.shape[1]
         j = torch.floor(at_start / v0 + 1e-6).long().clamp(0, H - 1)  # 0 at the first step: the action played
         return seqs[:, j]
+
+    @staticmethod
+    def _steps(start: torch.Tensor, pos: torch.Tensor) -> torch.Tensor:
+        """``[..., H]``: the metres each step of positions ``[..., H, 2]`` moves the car, the first from ``start``."""
+        return torch.cat([(pos[..., :1, :] - start).norm(dim=-1), (pos[..., 1:, :] - pos[..., :-1, :]).norm(dim=-1)], -1)
 
     def shifts(self, root: TensorDictBase, seqs: torch.Tensor) -> torch.Tensor:
         """``[N]``: for each candidate (action space), the ``k`` (0..advance) for which it is explore's plan ``k`` steps
@@ -311,7 +316,7 @@ class RetimingPlanner(MPCPlannerBase):
         v0 = float(torch.hypot(hist[-1, VX], hist[-1, VY]))
         p = pos.double()
         M, N, H = p.shape[:3]
-        step = torch.cat([(p[:, :, :1] - start).norm(dim=-1), (p[:, :, 1:] - p[:, :, :-1]).norm(dim=-1)], -1)
+        step = self._steps(start, p)
         at = torch.cat([step.new_zeros(M, N, 1), step[..., :-1].cumsum(-1)], -1)  # m driven when each step starts
         # its speed then: the mean of the steps either side (each step's length is its mean speed, at its middle)
         v = torch.cat([step.new_full((M, N, 1), v0), (step[..., :-1] + step[..., 1:]) / 2], -1)

@@ -180,3 +180,24 @@ def test_history_window_one_hot_actions() -> None:
 def test_real_env_specs_with_history() -> None:
     check_env_specs(history_env(*TOWN1, config=FAST, seed=0))
     check_env_specs(history_env("Town1", {"route": 1}, config={**FAST, "adaptive_speed": True}, seed=0, K=3))
+
+
+def test_the_explore_table_option_declares_its_spec_and_holds_explores_prompts_ahead():
+    # off by default (no key); on, the specs hold it and, where explore's plan says a prompt, the table says the plan's
+    # first one too (later ones may lie past the table's 240 m)
+    from torchrl.envs.utils import check_env_specs
+
+    from pernav.env.torchrl_env import make_torchrl_env
+
+    assert "explore_table" not in make_torchrl_env(config={"n_traffic": 2}, seed=1).observation_spec.keys()
+    env = make_torchrl_env(config={"n_traffic": 2, "explore_table": True}, seed=1)
+    check_env_specs(env)
+    td = env.rollout(30)
+    table, future = td["explore_table"], td["explore_future"]
+    assert table.shape[-2:] == (10, 81)
+    for t in range(td.shape[0]):
+        prompts = [a for a in future[t].tolist() if a]
+        if prompts:
+            assert prompts[0] in table[t].unique().tolist()
+        else:
+            assert not bool(table[t].any())
