@@ -26,7 +26,7 @@ import gymnasium as gym
 import numpy as np
 
 from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS, STATE_DIM
-from pernav.env.planning import action_mask, explore_plan, explore_table, plan_goals, route_ahead
+from pernav.env.planning import action_mask, explore_plan, explore_table, plan_goals, route_ahead, route_boxes
 from pernav.env.policies import (
     BeliefSource,
     NavView,
@@ -80,6 +80,9 @@ DEFAULT_CONFIG: dict[str, Any] = {
     # EXPLORE_POINTS ahead (a planner that imagines explore closed loop reads it; zeros where explore's plan holds no
     # prompt); off by default: it costs a few ms a step
     "explore_table": False,
+    # info also carries "route_boxes": the metres to the next crossing's box on the route and since the route entered
+    # the last (pernav.env.planning.route_boxes: map data, as the route is; the hybrid driver model reads it)
+    "route_boxes": True,
     # what the navigation believes of its user (a mapping of Driver fields over the average driver's, e.g. a
     # learner's estimate of its reaction and decision times): info then carries "belief_action", the explore
     # rule re-timed for that belief, as "oracle_action" is the rule re-timed for the truth. A BeliefSource (e.g.
@@ -479,6 +482,8 @@ class NavigationEnv(gym.Env):
         if self.config["explore_table"]:  # only where a prompt is ahead in the plan: elsewhere no planner searches
             table["explore_table"] = explore_table(self._explore, view) if bool(future.any()) else \
                 np.zeros((len(EXPLORE_SPEEDS), EXPLORE_POINTS), dtype=np.int64)
+        if self.config["route_boxes"]:
+            table["route_boxes"] = route_boxes(self.town, self.route, self.progress)
         return {
             "plan_goals": plan_goals(self.route, self.progress, speed, H),
             "explore_plan": plan,

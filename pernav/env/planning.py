@@ -32,6 +32,7 @@ import numpy as np
 from pernav.env.layout import EXPLORE_POINTS, EXPLORE_SPEEDS, ROUTE_BEHIND, ROUTE_SPACING
 from pernav.env.policies import ENTER, EXIT, KEEP_LEFT, PREPARE, TURN, NavView, PromptPolicy
 from pernav.world.constants import GOAL_LOOKAHEAD_S, N_INSTRUCTIONS, WAYPOINT_SPACING, Instruction
+from pernav.world.network import Town
 from pernav.world.routing import Route
 
 __all__ = ["RING_REACH", "TURN_REACH", "allowed_instructions", "explore_plan", "explore_table", "plan_goals",
@@ -53,6 +54,29 @@ def route_ahead(route: Route, progress: float, points: int) -> np.ndarray:
     s = progress - ROUTE_BEHIND + ROUTE_SPACING * np.arange(points)
     idx = np.clip(np.searchsorted(route.s, s), 0, len(route.s) - 1)
     return route.waypoints[idx].astype(np.float32)
+
+
+def route_boxes(town: Town, route: Route, progress: float) -> np.ndarray:
+    """``[2]``: the metres to the next crossing's box the route enters and since the car's route entered the last one
+    (1e3: none): map data (the env's ``route_boxes`` option). A driver drops the sided prompts it heard before it
+    entered a crossing (they were for that one), so a model of the driver needs where the route enters them.
+
+    >>> import gymnasium as gym
+    >>> import pernav
+    >>> env = gym.make("pernav/Town1-v0")
+    >>> _, info = env.reset(seed=0, options={"route": 0})
+    >>> [round(float(x)) for x in info["route_boxes"]], round(info["distance_to_junction"])  # the first decision's
+    ([111, 1000], 111)
+    """
+    # a box is entered where the route's lane enters a crossing from outside it (a roundabout is not a box here: its
+    # exits are announced before it and on it)
+    boxes = [town.lane_junction.get(lane) for lane in route.lanes]
+    boxes = [b if b is not None and town.junctions[b].kind == "cross" else None for b in boxes]
+    starts = np.array([route.lane_start[i] for i, box in enumerate(boxes) if box is not None
+                       and (i == 0 or boxes[i - 1] != box)])
+    ahead, behind = starts[starts > progress], starts[starts <= progress]
+    return np.array([ahead.min() - progress if len(ahead) else 1e3, progress - behind.max() if len(behind) else 1e3],
+                    dtype=np.float32)
 
 
 def explore_plan(policy: PromptPolicy, view: NavView, past: list[int], horizon: int, shift: int) -> np.ndarray:

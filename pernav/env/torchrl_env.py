@@ -178,6 +178,8 @@ def planning_arrays(config: Mapping[str, Any], n_actions: int) -> dict[str, tupl
     H, S = int(config["plan_horizon"]), int(config["plan_shift"])
     table = {"explore_table": ((len(EXPLORE_SPEEDS), EXPLORE_POINTS), torch.int64)} if config.get("explore_table") \
         else {}
+    if config.get("route_boxes"):
+        table["route_boxes"] = ((2,), torch.float32)
     return {**table,
         "plan_goals": ((H, 2), torch.float32),
         "explore_plan": ((H + 2 * S,), torch.int64),

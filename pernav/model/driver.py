@@ -6,6 +6,11 @@ driver (:class:`DriverImaginedEnv`, an env with ``imagine`` for :class:`~pernav.
 The structure it assumes is the model's own, not the simulator's (it never calls :mod:`pernav.world`'s drivers or
 traffic):
 
+* a "turn" or "prepare" said before the car enters a crossing is dropped there (it was for that crossing): one of the
+  history said before the car entered the last crossing, and one said before the car reaches a crossing that lies
+  before the next decision junction (the env's ``route_boxes``: where the route enters crossings, map data); where the
+  root does not hold them, a prompt of the history said over 160 m before the junction ahead is the last junction's
+  (the model before the twenty-first session, which ignored explore's "prepare" said farther out to a fast car);
 * a prompt played at the start of a step is heard by the end of its audio and takes effect a reaction time later,
   lognormal around the driver's mean reaction time ``R`` with a log-SD ``sigma`` (one draw per row of the
   imagination: rows are quantiles of that draw and samples of the driver's parameters);
@@ -81,6 +86,7 @@ __all__ = ["DriverImaginedEnv", "DriverParams", "dropped_prompts", "imagine_driv
 HERE = round(ROUTE_BEHIND / ROUTE_SPACING)  # the car's projection in ``route_ahead``
 SUBSTEPS = 2  # the imagination's steps per one-second decision (0.5 s: a decision within its time budget)
 MIN_COMMIT = 4.0  # m: a driver commits no closer to the junction than this
+BOX_MARGIN = 2.0  # m: a junction box that starts this close before the decision junction is that junction's
 PROMPT_REACH = 160.0  # m: no prompt is said further than this before its junction (a "prepare" at the latest speeds)
 FAR = 1e3  # the env's distance_to_junction when no decision junction lies ahead
 HARD_BRAKE = 2.5  # a driver's braking for a turn it learns of too late, in multiples of its comfortable deceleration
@@ -161,7 +167,7 @@ def _end(route: torch.Tensor) -> float:
 
 
 def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor, s_junction: float, v0: float,
-             dropped_before: float = -math.inf, other_side: tuple[int, ...] = ()
+             dropped_before: float = -math.inf, other_side: tuple[int, ...] = (), entered: float | None = None
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(first_turn, first_prepare, turn_from, turn_until)``: when the first "turn" and the first "prepare" for the
     junction ahead take effect (``[M, N]``, s from now; ``inf``: none), for each row's reaction time ``reaction``
@@ -183,8 +189,10 @@ def _effects(hist: torch.Tensor, sequences: torch.Tensor, reaction: torch.Tensor
     effect = starts + _audio(actions)  # [S, N, T] heard at the audio's end...
     effect = effect + reaction.unsqueeze(-1)  # [M, N, T] ...and acted on a reaction later
     # a prompt of the history is for the junction ahead only if it was said within reach of it (else it was the last
-    # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back
-    reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH
+    # junction's): the navigation said it ``-start`` s ago, about ``v0 * -start`` m further back; where the navigation
+    # gives its route's junction boxes, only if said after the car entered the last (the driver dropped the others)
+    reach = (s_junction - v0 * starts.clamp(max=0.0)) <= PROMPT_REACH if entered is None else \
+        starts >= -entered / max(v0, 0.1)
     ours = ~torch.isin(actions, torch.tensor(other_side, dtype=torch.long))  # [S, N, T] not the other side's
     prepare = torch.isin(actions, torch.tensor(PREPARES)) & ours
     # only a "turn" names a branch: "enter the roundabout" and "keep left" leave the driver on its way
@@ -320,9 +328,15 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # at a junction (not a ring, whose exits are all "turn right"), a prompt of the side the route does not turn to
     # names the other branch: the car does not follow the route there
     other = () if ring or s_junction >= FAR else _other_side(route, s_junction)
-    heard = _effects(hist, sequences, reaction, s_first, v0, other_side=() if through else other)
+    # the navigation's junction boxes on its route: a prompt said before the car enters one ahead of the junction is
+    # dropped there (it was for that one), as one said before the car entered the last
+    box_ahead, entered = (float(root["route_boxes"][0]), float(root["route_boxes"][1])) if "route_boxes" in root.keys() \
+        else (math.inf, None)
+    drop = box_ahead / max(v0, 0.1) if box_ahead < s_first - BOX_MARGIN else -math.inf
+    heard = _effects(hist, sequences, reaction, s_first, v0, drop, () if through else other, entered)
     if through:
-        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, s_first / max(v0, 0.1), other), heard
+        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, max(drop, s_first / max(v0, 0.1)),
+                                      other, entered), heard
     first_turn, first_prepare = heard[:2]
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it

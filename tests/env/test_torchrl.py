@@ -201,3 +201,23 @@ def test_the_explore_table_option_declares_its_spec_and_holds_explores_prompts_a
             assert prompts[0] in table[t].unique().tolist()
         else:
             assert not bool(table[t].any())
+
+
+def test_the_route_boxes_count_down_to_each_crossing_the_route_enters_and_up_from_it():
+    # on by default: the metres to the next crossing's box fall as the car drives toward it; when the car's route
+    # enters it, the metres since the last entry start again near zero and then grow
+    from torchrl.envs.utils import check_env_specs
+
+    from pernav.env.torchrl_env import make_torchrl_env
+
+    env = make_torchrl_env(config={"n_traffic": 2}, seed=1)
+    check_env_specs(env)
+    boxes = env.rollout(60)["route_boxes"]
+    ahead, entered = boxes[:, 0], boxes[:, 1]
+    entries = [t for t in range(1, len(boxes)) if entered[t] < entered[t - 1]]
+    assert entries, "the drive entered no crossing"
+    for t in range(1, len(boxes)):
+        if t not in entries:
+            assert float(ahead[t]) <= float(ahead[t - 1]) + 1e-3 and float(entered[t]) >= float(entered[t - 1]) - 1e-3
+        else:
+            assert float(entered[t]) < 20.0

@@ -178,6 +178,38 @@ def _right_turn_root(points: int, turn_at: int, distance: float):
     return TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(distance)}, [])
 
 
+def test_a_prepare_said_far_before_its_junction_slows_the_imagined_car_unless_a_crossing_lies_between():
+    # 15 m/s, a right turn 225 m ahead: explore says a fast car's "prepare" this far out (up to about 250 m); before the
+    # twenty-first session, a prompt said over 160 m before its junction did nothing in imagination. With a crossing
+    # the route goes straight through 60 m ahead (the env's route_boxes), the driver drops it there
+    ahead = {}
+    for box in (1e3, 60.0):
+        root = _right_turn_root(points=96, turn_at=80, distance=225.0)
+        root["history"][:, 3] = 15.0
+        root["route_boxes"] = torch.tensor([box, 1e3])
+        env = DriverImaginedEnv([DriverParams(reaction_time=0.8, sigma=0.001, cruise=15.0, prepared=0.75)],
+                                quantiles=(0.0,))
+        said = torch.stack([torch.full((10,), int(Instruction.PREPARE_RIGHT)), torch.zeros(10, dtype=torch.long)])
+        pos = env.imagine(root, said)[0][0]
+        ahead[box] = float(pos[1, -1, 0] - pos[0, -1, 0])  # how far the car that heard nothing is ahead after 10 s
+    assert ahead[1e3] > 5.0 and abs(ahead[60.0]) < 0.1
+
+
+def test_a_turn_said_before_the_car_entered_the_last_crossing_is_not_for_the_next():
+    # a "turn right" said 4 and 3 s ago at 10 m/s; a right turn 57 m ahead. Entered 25 m ago (2.5 s), the crossing
+    # took it (the driver goes straight on here); entered 45 m ago, before it was said, the "turn" is this junction's
+    turn = int(Instruction.TURN_RIGHT)
+    ends = {}
+    for entered in (25.0, 45.0):
+        root = _right_turn_root(points=96, turn_at=24, distance=57.0)
+        root["history"][:2, 14 + turn] = 1.0
+        root["route_boxes"] = torch.tensor([1e3, entered])
+        env = DriverImaginedEnv([DriverParams(reaction_time=0.5, decision_time=2.0, sigma=0.001, cruise=10.0)],
+                                quantiles=(0.0,))
+        ends[entered] = env.imagine(root, torch.zeros(1, 12, dtype=torch.long))[0][0, 0, -1]
+    assert abs(float(ends[25.0][1])) < 1.0 and float(ends[45.0][1]) > 5.0
+
+
 def test_a_turn_said_before_the_car_enters_a_junction_it_goes_straight_through_is_dropped_there():
     # 10 m/s: straight on through a junction 60 m on (entered 6 s from now, committed to 4 s from now), then right at
     # 150 m; a "turn" said at 5 s takes effect at 6.7 s, past the first junction's entry (no wrong turn there)
