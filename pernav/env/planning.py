@@ -8,6 +8,8 @@ a turn where no junction is ahead. The navigation knows its route, so it provide
 * ``explore_plan`` ``[H + 2S]`` (instructions 0-6): the explore policy's instructions for the ``S`` past
   steps, now, and the ``H - 1 + S`` next steps (the future imagined along the route at constant speed), so
   that ``explore_plan[S + k : S + k + H]`` is the explore sequence shifted by ``k`` steps, ``|k| <= S``;
+* ``route_boxes`` ``[2]``: the metres to the next crossing the route enters and since it entered the last (a
+  driver drops the sided prompts it heard before a crossing; the hybrid driver model reads it);
 * ``action_mask`` ``[H, n_actions]``: which actions make sense at each level of the tree: silence always;
   "prepare"/"turn" only in the direction of the next turn and only when it is within ``TURN_REACH``;
   roundabout prompts only near or in a roundabout; and whatever the explore plan says at that level.
