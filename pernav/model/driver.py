@@ -332,11 +332,12 @@ def imagine_drive(root: TensorDictBase, sequences: torch.Tensor, drivers: torch.
     # dropped there (it was for that one), as one said before the car entered the last
     box_ahead, entered = (float(root["route_boxes"][0]), float(root["route_boxes"][1])) if "route_boxes" in root.keys() \
         else (math.inf, None)
-    drop = box_ahead / max(v0, 0.1) if box_ahead < s_first - BOX_MARGIN else -math.inf
+    moving = max(v0, 0.1)  # the speed the moments of reaching a box or a junction are read at
+    drop = box_ahead / moving if box_ahead < s_first - BOX_MARGIN else -math.inf
     heard = _effects(hist, sequences, reaction, s_first, v0, drop, () if through else other, entered)
     if through:
-        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, max(drop, s_first / max(v0, 0.1)),
-                                      other, entered), heard
+        heard, heard_first = _effects(hist, sequences, reaction, s_first, v0, max(drop, s_first / moving), other,
+                                      entered), heard
     first_turn, first_prepare = heard[:2]
     start = float(torch.clamp(D * v0, min=MIN_COMMIT).min())  # a junction this close was decided before the root (unknown)
     # the junction the route goes straight through: a turn in effect there is taken there (a wrong turn); the one it
