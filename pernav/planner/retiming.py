@@ -214,6 +214,7 @@ class RetimingPlanner(MPCPlannerBase):
     """
 
     by_distance: bool = False
+    step_cap: float | None = None
     closed_loop: bool = False
     closed_passes: int = 2  # re-imaginations with the prompts read off the car imagined the pass before
 
@@ -259,11 +260,14 @@ class RetimingPlanner(MPCPlannerBase):
         """``[M, N]``: the planner's cost of positions and goals ``[M, N, H, 2]`` from ``root`` (imagined or driven)."""
         start_goal = root["history"][-1, [GX, GY]].float()
         prev = torch.cat([start_goal.expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
-        cost = tracking_cost(pos, prev).sum(-1)
         route = root["route_ahead"].float()  # [P, 2]
         d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
         dist, nearest = d.min(-1)
-        cost = cost + self.route_weight * (dist ** 2).sum(-1)
+        if self.step_cap is None:
+            cost = tracking_cost(pos, prev).sum(-1) + self.route_weight * (dist ** 2).sum(-1)
+        else:  # each step's charge capped: a missed turn costs about what it costs an episode, not its squared metres
+            step = tracking_cost(pos, prev) + self.route_weight * dist ** 2  # [M, N, H]
+            cost = step.clamp(max=self.step_cap).sum(-1)
         progress = self.progress_weight * ROUTE_SPACING * nearest[..., -1].to(cost.dtype)
         return cost - progress
 

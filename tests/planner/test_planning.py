@@ -447,3 +447,33 @@ def test_closed_loop_needs_the_env_table_and_keeps_the_candidates_first_actions(
     action, result = planner.decide(root)
     assert result is not None and action == int(result.candidates[result.chosen, 0])
     assert torch.isfinite(result.costs).all()
+
+
+def test_a_capped_step_charge_is_each_steps_charge_clamped_and_makes_a_missed_turn_cost_at_most_the_cap_a_step():
+    # RetimingPlanner.step_cap (off by default): the "turn" said now is taken, said 14 steps late it is missed. Capped,
+    # the score is the brute-force sum of each step's (tracking + squared route distance) clamped at the cap, less the
+    # same progress: a miss then costs at most the cap a step instead of its squared metres
+    from pernav.env.layout import ROUTE_SPACING
+    from pernav.model.driver import DriverParams
+    from pernav.model.egocentric import GX, GY
+
+    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # a right turn 57 m ahead
+    route[25:, 1] = (torch.arange(71.0) + 1) * 3
+    route[25:, 0] = route[24, 0]
+    history = torch.zeros(5, 21)
+    history[:, 3] = 10.0
+    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+    planner = RetimingPlanner(DriverImaginedEnv([DriverParams(reaction_time=1.0)]), horizon=16)
+    seqs = torch.stack([torch.full((16,), 2), torch.cat([torch.zeros(14, dtype=torch.long), torch.full((2,), 2)])])
+    pos, goal = planner._imagine(root, seqs)
+    plain = planner.score(root, pos, goal)
+    planner.step_cap = 10.0
+    capped = planner.score(root, pos, goal)
+    prev = torch.cat([history[-1, [GX, GY]].expand(*goal.shape[:2], 1, 2), goal[:, :, :-1]], dim=2)
+    dist, nearest = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], -1).min(-1)
+    step = tracking_cost(pos, prev) + dist ** 2
+    progress = ROUTE_SPACING * nearest[..., -1].float()
+    assert torch.allclose(plain, step.sum(-1) - progress, rtol=1e-5)
+    assert torch.allclose(capped, step.clamp(max=10.0).sum(-1) - progress, rtol=1e-5)
+    assert float(plain[0, 1] - plain[0, 0]) > 1000.0  # the miss, uncapped: thousands of squared metres
+    assert 0.0 < float(capped[0, 1] + progress[0, 1]) <= 16 * 10.0 + 1e-4

@@ -8,7 +8,7 @@ shifts as the true simulator does on the sweep approach. At every step of explor
 (``k`` > 0: explore's plan ``k`` steps ahead; ``k`` < 0: its prompts of ``-k`` steps ago, then its plan) is imagined
 over the planner's horizon; the imagined cost over explore's plan is summed over the steps and the drives.
 
-    .venv/bin/python docs/research/scripts/model_shift.py --seeds 5
+    .venv/bin/python docs/research/scripts/model_shift.py --seeds 5 [--step-cap 10]
 """
 
 from __future__ import annotations
@@ -35,26 +35,40 @@ PLAN_SHIFT = CONFIG["plan_shift"]  # how far back the env's explore_plan reaches
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--step-cap", type=float, default=None,
+                        help="cap each imagined step's charge (RetimingPlanner.step_cap): a miss costs an episode's scale")
+    parser.add_argument("--drivers", nargs="+", default=list(DRIVERS), choices=list(DRIVERS))
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="imagine each shift k >= 0 closed loop on the env's explore table "
+                             "(RetimingPlanner.closed_loop); the shifts below 0 are left out")
     args = parser.parse_args()
     horizon = OPTIONS["horizon"]
-    for name, (profile, context) in DRIVERS.items():
+    config = {**CONFIG, "explore_table": True} if args.closed_loop else CONFIG
+    shifts = tuple(k for k in SHIFTS if k >= 0) if args.closed_loop else SHIFTS
+    for name in args.drivers:
+        profile, context = DRIVERS[name]
         planner = RetimingPlanner(DriverImaginedEnv([true_params(profile, context)]),
                                   departure=Departure(**DRIVER_PLANNER["departure"]), **OPTIONS)
-        totals = dict.fromkeys(SHIFTS, 0.0)
+        planner.step_cap = args.step_cap
+        totals = dict.fromkeys(shifts, 0.0)
         for seed in range(args.seeds):
-            env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG,
+            env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=config,
                               seed=seed)
             trajectory = drive(env, explore_module())
             for t in range(trajectory.shape[0]):
                 root = trajectory[t]
                 future, plan = root["explore_future"].long(), root["explore_plan"].long()
                 seqs = torch.stack([future[k:k + horizon] if k >= 0 else
-                                    torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in SHIFTS])
-                explore = SHIFTS.index(0)
+                                    torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in shifts])
+                explore = shifts.index(0)
                 if bool((seqs == seqs[explore]).all()):
                     continue
-                mean = planner.costs(root, seqs)[0].mean(0)
-                for i, k in enumerate(SHIFTS):
+                if args.closed_loop:
+                    pos, goal, _ = planner.imagine_closed(root, seqs)
+                    mean = planner.score(root, pos, goal).mean(0)
+                else:
+                    mean = planner.costs(root, seqs)[0].mean(0)
+                for i, k in enumerate(shifts):
                     totals[k] += float(mean[i] - mean[explore])
         print(name, "the model's shift:", min(totals, key=totals.get),
               "imagined cost over explore's, summed:", {k: round(v, 1) for k, v in totals.items()})

@@ -17,7 +17,7 @@ the car overshoots the route's end by, 0-35 here): each shift's mean and its 95 
 planner's cost; and, paired by seed, explore minus the best shift (where its CI includes 0 the approach cannot tell
 the best shift from explore's rule) and explore minus the planner.
 
-    .venv/bin/python docs/research/scripts/planner_vs_best_shift.py --seeds 10 --json out.json
+    .venv/bin/python docs/research/scripts/planner_vs_best_shift.py --seeds 10 [--step-cap 10] --json out.json
 """
 
 from __future__ import annotations
@@ -70,6 +70,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--first-seed", type=int, default=0, help="the seeds are first-seed .. first-seed + seeds - 1")
     parser.add_argument("--drivers", nargs="+", default=list(DRIVERS), choices=list(DRIVERS))
+    parser.add_argument("--step-cap", type=float, default=None,
+                        help="the planner's RetimingPlanner.step_cap (each imagined step's charge capped)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     route, seeds, report = sweep_route(), range(args.first_seed, args.first_seed + args.seeds), {}
@@ -88,6 +90,7 @@ def main() -> None:
         explore = [run(explore_module(), s) for s in seeds]
         planner = RetimingPlanner(DriverImaginedEnv([true_params(profile, context)]),
                                   departure=Departure(**DRIVER_PLANNER["departure"]), **OPTIONS)
+        planner.step_cap = args.step_cap
         planned = [run(planner, s) for s in seeds]
         leads = [p["turn_lead"] - e["turn_lead"] for p, e in zip(planned, explore, strict=True)
                  if p["turn_lead"] is not None and e["turn_lead"] is not None]
@@ -108,7 +111,8 @@ def main() -> None:
         print(name, json.dumps(report[name]))
     if args.json:
         with open(args.json, "w") as f:
-            json.dump({"seeds": args.seeds, "first_seed": args.first_seed, "drivers": report}, f, indent=1)
+            json.dump({"seeds": args.seeds, "first_seed": args.first_seed, "step_cap": args.step_cap,
+                       "drivers": report}, f, indent=1)
 
 
 if __name__ == "__main__":
