@@ -211,6 +211,9 @@ class RetimingPlanner(MPCPlannerBase):
             explore's rule says (the env's ``"explore_table"``) ``k`` steps ahead of the imagined car at its imagined
             speed, as :class:`ShiftedExplore` does on the real car; so the base the planner must beat is explore as it
             plays, not its plan at the speed now. Iterated: each row's imagined car gives its prompts, and they the car.
+        step_cap: cap each imagined step's charge (tracking plus route term) at this many squared metres (``None``,
+            the default: uncapped; twenty-second session, not kept). A missed turn then costs at most the cap a step,
+            about what it costs an episode (the env re-routes), instead of thousands of squared metres off the route.
     """
 
     by_distance: bool = False

@@ -72,8 +72,11 @@ def main() -> None:
     parser.add_argument("--drivers", nargs="+", default=list(DRIVERS), choices=list(DRIVERS))
     parser.add_argument("--step-cap", type=float, default=None,
                         help="the planner's RetimingPlanner.step_cap (each imagined step's charge capped)")
+    parser.add_argument("--margin", type=float, default=None,
+                        help="the planner's absolute departure margin (default: DRIVER_PLANNER's)")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
+    departure = {**DRIVER_PLANNER["departure"], **({} if args.margin is None else {"margin": args.margin})}
     route, seeds, report = sweep_route(), range(args.first_seed, args.first_seed + args.seeds), {}
     for name in args.drivers:
         profile, context = DRIVERS[name]
@@ -89,7 +92,7 @@ def main() -> None:
         shifted = {k: [run(ShiftedExplore(k), s) for s in seeds] for k in SHIFTS}
         explore = [run(explore_module(), s) for s in seeds]
         planner = RetimingPlanner(DriverImaginedEnv([true_params(profile, context)]),
-                                  departure=Departure(**DRIVER_PLANNER["departure"]), **OPTIONS)
+                                  departure=Departure(**departure), **OPTIONS)
         planner.step_cap = args.step_cap
         planned = [run(planner, s) for s in seeds]
         leads = [p["turn_lead"] - e["turn_lead"] for p, e in zip(planned, explore, strict=True)
@@ -112,7 +115,7 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"seeds": args.seeds, "first_seed": args.first_seed, "step_cap": args.step_cap,
-                       "drivers": report}, f, indent=1)
+                       "margin": departure["margin"], "drivers": report}, f, indent=1)
 
 
 if __name__ == "__main__":
