@@ -427,17 +427,22 @@ def test_closed_loop_says_explores_prompts_where_its_rule_would_on_the_imagined_
     assert planner.closed_sequences(root, held, car([10.0] * 16), torch.tensor([-1]))[0, 0].tolist() == [2] * 16
 
 
-def test_closed_loop_needs_the_env_table_and_keeps_the_candidates_first_actions():
-    from pernav.model.driver import DriverParams
-
-    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # a right turn 57 m ahead
+def _right_turn_root() -> TensorDict:
+    """A car at 10 m/s with no prompt yet, a right turn 57 m ahead (the hybrid driver model's example)."""
+    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)
     route[25:, 1] = (torch.arange(71.0) + 1) * 3
     route[25:, 0] = route[24, 0]
     history = torch.zeros(5, 21)
     history[:, 3] = 10.0
-    future = torch.tensor([0, 0, 4, 4, 4, 2, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
-    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0),
-                       "explore_future": future, "action_mask": torch.ones(5, 7, dtype=torch.bool)}, [])
+    return TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+
+
+def test_closed_loop_needs_the_env_table_and_keeps_the_candidates_first_actions():
+    from pernav.model.driver import DriverParams
+
+    root = _right_turn_root()
+    root["explore_future"] = torch.tensor([0, 0, 4, 4, 4, 2, 2, 2, 2, 2, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+    root["action_mask"] = torch.ones(5, 7, dtype=torch.bool)
     planner = RetimingPlanner(DriverImaginedEnv([DriverParams(reaction_time=2.5)]), horizon=16, advance=8,
                               departure=Departure(margin=-1e9, rel_margin=0.0, agree=1e-9, max_spread=None))
     planner.closed_loop = True
@@ -457,12 +462,8 @@ def test_a_capped_step_charge_is_each_steps_charge_clamped_and_makes_a_missed_tu
     from pernav.model.driver import DriverParams
     from pernav.model.egocentric import GX, GY
 
-    route = torch.stack([torch.arange(96.0) * 3 - 15, torch.zeros(96)], -1)  # a right turn 57 m ahead
-    route[25:, 1] = (torch.arange(71.0) + 1) * 3
-    route[25:, 0] = route[24, 0]
-    history = torch.zeros(5, 21)
-    history[:, 3] = 10.0
-    root = TensorDict({"history": history, "route_ahead": route, "distance_to_junction": torch.tensor(57.0)}, [])
+    root = _right_turn_root()
+    route, history = root["route_ahead"], root["history"]
     planner = RetimingPlanner(DriverImaginedEnv([DriverParams(reaction_time=1.0)]), horizon=16)
     seqs = torch.stack([torch.full((16,), 2), torch.cat([torch.zeros(14, dtype=torch.long), torch.full((2,), 2)])])
     pos, goal = planner._imagine(root, seqs)

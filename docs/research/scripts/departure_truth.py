@@ -38,18 +38,24 @@ from pernav.study.stats import paired_difference  # noqa: E402
 from pernav.trainer.collect import episode_metrics  # noqa: E402
 
 
-def explore_closed_loop(nav, samples: int, seed: int, horizon: int, playbacks: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Positions and goals ``[samples, 1, horizon, 2]`` of explore's rule played closed loop (each step's explore
-    action on the copy's own state) on the same re-seeded copies as ``TrueDynamicsEnv(nav, samples, seed)`` draws."""
+def played_on_copies(nav, act, samples: int, seed: int, horizon: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Positions and goals ``[samples, 1, horizon, 2]`` of a rule ``act(copy) -> action`` played closed loop (each
+    step's action on the copy's own state) on the same re-seeded copies as ``TrueDynamicsEnv(nav, samples, seed)``
+    draws."""
     rng = np.random.default_rng(seed)
     pos = np.zeros((samples, 1, horizon, 2), dtype=np.float32)
     goal = np.zeros_like(pos)
     for m in range(samples):
         env, done = nav.branch(int(rng.integers(2**31 - 1))), False
         for h in range(horizon):
-            action = env.explore_action() * playbacks + (1 if playbacks > 1 else 0)  # normal playback
-            done = TrueDynamicsEnv._advance(env, action, [0], h, pos[m], goal[m], done)
+            done = TrueDynamicsEnv._advance(env, act(env), [0], h, pos[m], goal[m], done)
     return torch.from_numpy(pos), torch.from_numpy(goal)
+
+
+def explore_closed_loop(nav, samples: int, seed: int, horizon: int, playbacks: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Explore's rule played closed loop on the copies (:func:`played_on_copies`), at the normal playback."""
+    return played_on_copies(nav, lambda env: env.explore_action() * playbacks + (1 if playbacks > 1 else 0),
+                            samples, seed, horizon)
 
 
 class Checked:

@@ -23,10 +23,8 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from pernav.diagnostics import TrueDynamicsEnv
 from pernav.env.planning import explore_plan
 from pernav.env.sweep import sweep_route
 from pernav.env.torchrl_env import explore_module, navigation_of
@@ -36,6 +34,7 @@ from pernav.study.driver_rounds import SHIFTS
 from pernav.trainer.collect import drive, history_env
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from departure_truth import played_on_copies  # noqa: E402
 from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params  # noqa: E402
 
 PLAN_SHIFT = CONFIG["plan_shift"]
@@ -57,14 +56,7 @@ def shifted_action(nav, k: int) -> int:
 
 def closed_loop(nav, k: int, samples: int, seed: int, horizon: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Positions and goals ``[samples, 1, horizon, 2]`` of shift ``k`` played closed loop on re-seeded copies."""
-    rng = np.random.default_rng(seed)
-    pos = np.zeros((samples, 1, horizon, 2), dtype=np.float32)
-    goal = np.zeros_like(pos)
-    for m in range(samples):
-        env, done = nav.branch(int(rng.integers(2**31 - 1))), False
-        for h in range(horizon):
-            done = TrueDynamicsEnv._advance(env, shifted_action(env, k), [0], h, pos[m], goal[m], done)
-    return torch.from_numpy(pos), torch.from_numpy(goal)
+    return played_on_copies(nav, lambda env: shifted_action(env, k), samples, seed, horizon)
 
 
 class Scored:
