@@ -32,6 +32,7 @@ from pernav.model.driver import DriverImaginedEnv
 from pernav.planner.retiming import Departure, RetimingPlanner
 from pernav.study.driver_rounds import SHIFTS
 from pernav.trainer.collect import drive, history_env
+from pernav.world.constants import Instruction
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from departure_truth import played_on_copies  # noqa: E402
@@ -49,8 +50,7 @@ def shifted_action(nav, k: int) -> int:
     if k >= 0:
         instruction = explore_plan(nav._explore, nav.nav_view(), [], k + 1, 0)[k]
     else:
-        past = nav._explore_past
-        instruction = past[k] if len(past) >= -k else past[0]
+        instruction = ([Instruction.NONE] * -k + list(nav._explore_past))[k]  # padded as the env's explore_plan
     return nav.encode(int(instruction))
 
 
