@@ -266,7 +266,7 @@ class RetimingPlanner(MPCPlannerBase):
         route = root["route_ahead"].float()  # [P, 2]
         d = torch.cdist(pos.reshape(-1, 2), route).reshape(*pos.shape[:-1], route.shape[0])  # [M, N, H, P]
         dist, nearest = d.min(-1)
-        if self.step_cap is None:
+        if self.step_cap is None:  # the two sums kept apart, as before the cap: the default's figures stay bit-identical
             cost = tracking_cost(pos, prev).sum(-1) + self.route_weight * (dist ** 2).sum(-1)
         else:  # each step's charge capped: a missed turn costs about what it costs an episode, not its squared metres
             step = tracking_cost(pos, prev) + self.route_weight * dist ** 2  # [M, N, H]

@@ -32,6 +32,14 @@ from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true
 PLAN_SHIFT = CONFIG["plan_shift"]  # how far back the env's explore_plan reaches
 
 
+def shift_sequences(root, shifts: tuple[int, ...], horizon: int) -> torch.Tensor:
+    """``[len(shifts), horizon]``: each shift's plan from ``root`` (``k`` > 0: explore's plan ``k`` steps ahead;
+    ``k`` < 0: its prompts of ``-k`` steps ago, then its plan), as ``ShiftedExplore`` would play it at today's speed."""
+    future, plan = root["explore_future"].long(), root["explore_plan"].long()
+    return torch.stack([future[k:k + horizon] if k >= 0 else
+                        torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in shifts])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
@@ -57,9 +65,7 @@ def main() -> None:
             trajectory = drive(env, explore_module())
             for t in range(trajectory.shape[0]):
                 root = trajectory[t]
-                future, plan = root["explore_future"].long(), root["explore_plan"].long()
-                seqs = torch.stack([future[k:k + horizon] if k >= 0 else
-                                    torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in shifts])
+                seqs = shift_sequences(root, shifts, horizon)
                 explore = shifts.index(0)
                 if bool((seqs == seqs[explore]).all()):
                     continue

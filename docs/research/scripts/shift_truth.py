@@ -36,9 +36,9 @@ from pernav.world.constants import Instruction
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from departure_truth import played_on_copies  # noqa: E402
+from model_shift import shift_sequences  # noqa: E402
 from planner_vs_best_shift import CONFIG, DRIVER_PLANNER, DRIVERS, OPTIONS, true_params  # noqa: E402
 
-PLAN_SHIFT = CONFIG["plan_shift"]
 #: the scores compared: the planner's as it is, each step's charge capped, and the env's own step cost alone (no
 #: route or progress term: what an episode charges, where the simulator re-routes after a miss)
 VARIANTS = ("as_is", "capped", "tracking")
@@ -72,9 +72,7 @@ class Scored:
 
     def __call__(self, td):
         horizon = self.planner.horizon
-        future, plan = td["explore_future"].long(), td["explore_plan"].long()
-        seqs = torch.stack([future[k:k + horizon] if k >= 0 else
-                            torch.cat([plan[PLAN_SHIFT + k:PLAN_SHIFT], future[:horizon + k]]) for k in SHIFTS])
+        seqs = shift_sequences(td, SHIFTS, horizon)
         explore = SHIFTS.index(0)
         if not bool((seqs == seqs[explore]).all()):
             nav = navigation_of(self.env)
