@@ -1,0 +1,76 @@
+"""What a swerve costs on the sweep approach: the tracking cost and the car's distance from the route around each one.
+
+``shift_events.py`` finds that the clear shifts of user3 (truck in fog) and the very slow driver come with their
+swerves gone, and the twenty-second session guessed that a swerve runs the car wide, which the hybrid model does not
+imagine. This checks that guess: it drives the episodes ``planner_vs_best_shift.py`` drives under each constant shift
+(``ShiftedExplore``), records the world's swerve counter after every step (reading it is allowed here: a check of the
+model, not a learner) and reports, per shift, the episodes' mean cost, and for each swerve the step costs and the
+car's distance from the route (its nearest ``route_ahead`` point) from two steps before its onset to seven after.
+
+    .venv/bin/python docs/research/scripts/swerve_cost.py --driver user3_truck_fog --shifts 0 3 --seeds 10 --json out.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from planner_vs_best_shift import CONFIG, DRIVERS  # noqa: E402
+
+from pernav.env.sweep import sweep_route  # noqa: E402
+from pernav.env.torchrl_env import explore_module, navigation_of  # noqa: E402
+from pernav.planner.retiming import ShiftedExplore  # noqa: E402
+from pernav.trainer.collect import MAX_STEPS, history_env  # noqa: E402
+
+BEFORE, AFTER = 2, 8  # steps around a swerve's onset reported
+
+
+def episode(name: str, k: int, seed: int) -> dict:
+    """One episode of ``name``'s driver under shift ``k``: its cost, its largest distance from the route, and the
+    window around each swerve."""
+    profile, context = DRIVERS[name]
+    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG, seed=seed)
+    nav, swerves = navigation_of(env), []
+    policy = ShiftedExplore(k, plan_shift=CONFIG["plan_shift"]) if k else explore_module()
+    t = env.rollout(MAX_STEPS, policy=policy, break_when_any_done=True,
+                    callback=lambda _env, _td: swerves.append(nav.world.events.swerves))
+    counts = torch.tensor([0, *swerves[:t.shape[0]]])
+    onsets = (counts.diff() > 0).nonzero().flatten().tolist()
+    cost = t["next", "step_cost"]
+    off = (t["next", "route_ahead"] - t["next", "observation"][:, None, :2]).norm(dim=-1).min(-1).values
+    window = [{"step": s, "cost": [round(float(c), 1) for c in cost[max(s - BEFORE, 0):s + AFTER]],
+               "off_route_m": [round(float(d), 2) for d in off[max(s - BEFORE, 0):s + AFTER]]} for s in onsets]
+    return {"seed": seed, "cost": round(float(cost.sum()), 1), "max_off_route_m": round(float(off.max()), 2),
+            "swerves": window}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--driver", default="user3_truck_fog", choices=list(DRIVERS))
+    parser.add_argument("--shifts", type=int, nargs="+", default=[0, 3])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--json", default=None)
+    args = parser.parse_args()
+    report = {}
+    for k in args.shifts:
+        rows = [episode(args.driver, k, s) for s in range(args.seeds)]
+        windows = [w for r in rows for w in r["swerves"]]
+        report[str(k)] = {"mean_cost": round(statistics.mean(r["cost"] for r in rows), 1),
+                          "episodes_with_a_swerve": sum(bool(r["swerves"]) for r in rows),
+                          "largest_off_route_m": max(r["max_off_route_m"] for r in rows),
+                          "largest_step_cost_in_a_swerve": max((max(w["cost"]) for w in windows), default=None),
+                          "episodes": rows}
+        print(k, json.dumps({key: v for key, v in report[str(k)].items() if key != "episodes"}), flush=True)
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"driver": args.driver, "seeds": args.seeds, "shifts": report}, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
