@@ -40,25 +40,33 @@ def episode(name: str, k: int, seed: int) -> dict:
             **{e: int(getattr(nav.world.events, e)) for e in EVENTS}}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def by_shift(doc: str, episode, summary, shifts: tuple[int, ...]) -> None:
+    """The command line of this and ``swerve_cost.py``: ``episode(driver, k, seed)`` for each shift ``k`` and seed,
+    ``summary(rows)`` of each shift's episodes printed and written (with the episodes) to ``--json``."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--driver", default="user3_truck_fog", choices=list(DRIVERS))
-    parser.add_argument("--shifts", type=int, nargs="+", default=[-1, 0, 3])
+    parser.add_argument("--shifts", type=int, nargs="+", default=list(shifts))
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     report = {}
     for k in args.shifts:
         rows = [episode(args.driver, k, s) for s in range(args.seeds)]
-        report[str(k)] = {"mean_cost": round(statistics.mean(r["tracking_cost"] for r in rows), 1),
-                          "episodes_with": {key: sum(r[key] > 0 for r in rows) for key in rows[0]
-                                            if key != "tracking_cost"},
-                          "episodes": rows}
+        report[str(k)] = {**summary(rows), "episodes": rows}
         print(k, json.dumps({key: v for key, v in report[str(k)].items() if key != "episodes"}), flush=True)
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"driver": args.driver, "seeds": args.seeds, "shifts": report}, f, indent=1)
 
+
+def summary(rows: list[dict]) -> dict:
+    """A shift's mean cost and the episodes with each event."""
+    return {"mean_cost": round(statistics.mean(r["tracking_cost"] for r in rows), 1),
+            "episodes_with": {key: sum(r[key] > 0 for r in rows) for key in rows[0] if key != "tracking_cost"}}
+
+
+def main() -> None:
+    by_shift(__doc__, episode, summary, (-1, 0, 3))
 
 if __name__ == "__main__":
     main()

@@ -12,8 +12,6 @@ car's distance from the route (its nearest ``route_ahead`` point) from two steps
 
 from __future__ import annotations
 
-import argparse
-import json
 import statistics
 import sys
 from pathlib import Path
@@ -22,6 +20,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from planner_vs_best_shift import CONFIG, DRIVERS  # noqa: E402
+from shift_events import by_shift  # noqa: E402
 
 from pernav.env.sweep import sweep_route  # noqa: E402
 from pernav.env.torchrl_env import explore_module, navigation_of  # noqa: E402
@@ -50,27 +49,17 @@ def episode(name: str, k: int, seed: int) -> dict:
             "swerves": window}
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--driver", default="user3_truck_fog", choices=list(DRIVERS))
-    parser.add_argument("--shifts", type=int, nargs="+", default=[0, 3])
-    parser.add_argument("--seeds", type=int, default=10)
-    parser.add_argument("--json", default=None)
-    args = parser.parse_args()
-    report = {}
-    for k in args.shifts:
-        rows = [episode(args.driver, k, s) for s in range(args.seeds)]
-        windows = [w for r in rows for w in r["swerves"]]
-        report[str(k)] = {"mean_cost": round(statistics.mean(r["cost"] for r in rows), 1),
-                          "episodes_with_a_swerve": sum(bool(r["swerves"]) for r in rows),
-                          "largest_off_route_m": max(r["max_off_route_m"] for r in rows),
-                          "largest_step_cost_in_a_swerve": max((max(w["cost"]) for w in windows), default=None),
-                          "episodes": rows}
-        print(k, json.dumps({key: v for key, v in report[str(k)].items() if key != "episodes"}), flush=True)
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"driver": args.driver, "seeds": args.seeds, "shifts": report}, f, indent=1)
+def summary(rows: list[dict]) -> dict:
+    """A shift's mean cost, its episodes with a swerve, the farthest from the route and the dearest step in a swerve."""
+    windows = [w for r in rows for w in r["swerves"]]
+    return {"mean_cost": round(statistics.mean(r["cost"] for r in rows), 1),
+            "episodes_with_a_swerve": sum(bool(r["swerves"]) for r in rows),
+            "largest_off_route_m": max(r["max_off_route_m"] for r in rows),
+            "largest_step_cost_in_a_swerve": max((max(w["cost"]) for w in windows), default=None)}
 
+
+def main() -> None:
+    by_shift(__doc__, episode, summary, (0, 3))
 
 if __name__ == "__main__":
     main()
