@@ -28,12 +28,19 @@ from pernav.trainer.collect import drive, episode_metrics, history_env  # noqa: 
 EVENTS = ("swerves", "misunderstood", "ignored", "forgotten", "discarded")
 
 
+def shifted(name: str, k: int, seed: int) -> tuple:
+    """The env of ``name``'s driver on the sweep approach at ``seed`` and the policy of shift ``k`` (explore at 0): the
+    episodes ``planner_vs_best_shift.py`` drives."""
+    profile, context = DRIVERS[name]
+    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG, seed=seed)
+    return env, ShiftedExplore(k, plan_shift=CONFIG["plan_shift"]) if k else explore_module()
+
+
 def episode(name: str, k: int, seed: int) -> dict:
     """One episode of ``name``'s driver under shift ``k`` (the episodes ``planner_vs_best_shift.py`` drives): its cost
     and what happened."""
-    profile, context = DRIVERS[name]
-    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG, seed=seed)
-    m = episode_metrics(drive(env, ShiftedExplore(k, plan_shift=CONFIG["plan_shift"]) if k else explore_module()))
+    env, policy = shifted(name, k, seed)
+    m = episode_metrics(drive(env, policy))
     nav = navigation_of(env)
     return {"tracking_cost": round(m["tracking_cost"], 1), "missed_turns": m["missed_turns"],
             "wrong_turns": m["wrong_turns"], "collisions": m["collisions"],
@@ -67,6 +74,7 @@ def summary(rows: list[dict]) -> dict:
 
 def main() -> None:
     by_shift(__doc__, episode, summary, (-1, 0, 3))
+
 
 if __name__ == "__main__":
     main()

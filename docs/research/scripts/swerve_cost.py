@@ -19,13 +19,10 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from planner_vs_best_shift import CONFIG, DRIVERS  # noqa: E402
-from shift_events import by_shift  # noqa: E402
+from shift_events import by_shift, shifted  # noqa: E402
 
-from pernav.env.sweep import sweep_route  # noqa: E402
-from pernav.env.torchrl_env import explore_module, navigation_of  # noqa: E402
-from pernav.planner.retiming import ShiftedExplore  # noqa: E402
-from pernav.trainer.collect import MAX_STEPS, history_env  # noqa: E402
+from pernav.env.torchrl_env import navigation_of  # noqa: E402
+from pernav.trainer.collect import MAX_STEPS  # noqa: E402
 
 BEFORE, AFTER = 2, 8  # steps around a swerve's onset reported
 
@@ -33,10 +30,8 @@ BEFORE, AFTER = 2, 8  # steps around a swerve's onset reported
 def episode(name: str, k: int, seed: int) -> dict:
     """One episode of ``name``'s driver under shift ``k``: its cost, its largest distance from the route, and the
     window around each swerve."""
-    profile, context = DRIVERS[name]
-    env = history_env("Town1", {"route": sweep_route(), "user": profile, "context": context}, config=CONFIG, seed=seed)
+    env, policy = shifted(name, k, seed)
     nav, swerves = navigation_of(env), []
-    policy = ShiftedExplore(k, plan_shift=CONFIG["plan_shift"]) if k else explore_module()
     t = env.rollout(MAX_STEPS, policy=policy, break_when_any_done=True,
                     callback=lambda _env, _td: swerves.append(nav.world.events.swerves))
     counts = torch.tensor([0, *swerves[:t.shape[0]]])
@@ -60,6 +55,7 @@ def summary(rows: list[dict]) -> dict:
 
 def main() -> None:
     by_shift(__doc__, episode, summary, (0, 3))
+
 
 if __name__ == "__main__":
     main()
